@@ -1,0 +1,99 @@
+// larap::Deformer — bind once, pose many times.
+//
+//   Deformer d(mesh, options);        // lattice + binding (+ backend)
+//   d.set_handles({12, 40, 77});      // handle vertex ids; factorises the linear system
+//   d.solve(targets, 5, out);         // targets: #handles by 3; out: #V by 3 positions
+//
+// Energy (scale-free gamma, see docs/method.md):
+//   E = gamma * s^2 * mean_edges(|r_e|^2 / h^2) + mean_handles(|B_j c' - t_j|^2)
+// where r_e is the ARAP residual of a directed lattice edge, h the cell size and s the radius
+// of gyration of the rest vertices. The same gamma behaves the same at any model scale, lattice
+// resolution and handle count: a uniform strain eps of the whole lattice costs as much as every
+// handle missing its target by sqrt(gamma) * eps * s.
+#pragma once
+#include <larap/binding.h>
+#include <larap/lattice.h>
+#include <larap/mesh.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace larap {
+
+struct DeformerOptions {
+  LatticeOptions lattice;
+  WeightKind weights = WeightKind::Trilinear;
+  double gamma = 0.1;
+  std::string device = "cpu";  // "cpu" | "cuda" | "auto"
+};
+
+struct SolveStats {
+  std::vector<double> energy;  // energy after each flip-flop iteration (normalised, see above)
+  int iterations = 0;
+  bool rigid_carry = false;    // the previous pose was carried by the handles' best rigid motion
+  double ms_rotations = 0, ms_rhs = 0, ms_solve = 0, ms_transfer = 0, ms_total = 0;
+  double ms_factorize = 0;     // last set_handles
+  double ms_lattice = 0, ms_binding = 0;  // construction
+  void clear_solve() {
+    energy.clear();
+    iterations = 0;
+    rigid_carry = false;
+    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = 0;
+  }
+};
+
+class Backend;
+
+class Deformer {
+ public:
+  Deformer(PolygonMesh mesh, const DeformerOptions& options);
+  ~Deformer();
+  Deformer(const Deformer&) = delete;
+  Deformer& operator=(const Deformer&) = delete;
+
+  // Handle vertex ids (unique, in range). An empty set is allowed: solve then gives the rest pose.
+  void set_handles(const std::vector<int64_t>& indices);
+  // Switch the weights; keeps the lattice pose and re-prepares the current handles.
+  void set_weights(WeightKind kind);
+  void set_gamma(double gamma);
+  // Forget the pose: the next solve starts from rest.
+  void reset();
+
+  // targets: #handles by 3 row-major; out: #V by 3 row-major. Warm-starts from the last pose.
+  void solve(const double* targets, int iterations, double* out);
+  void solve(const double* targets, int iterations, float* out);
+
+  const Lattice& lattice() const { return lattice_; }
+  const PolygonMesh& mesh() const { return mesh_; }
+  RowMatrixX3d lattice_deformed() const;
+  const std::vector<int64_t>& handles() const { return handles_; }
+  WeightKind weights() const { return weights_; }
+  double gamma() const { return gamma_; }
+  double diagonal() const { return diagonal_; }
+  std::string device() const;
+  const SolveStats& stats() const { return stats_; }
+  const Binding& binding() const;
+
+ private:
+  template <typename T>
+  void solve_impl(const double* targets, int iterations, T* out);
+  void prepare_handles();
+
+  PolygonMesh mesh_;
+  Lattice lattice_;
+  WeightKind weights_;
+  double gamma_;
+  double diagonal_ = 1.0;  // bounding-box diagonal of the rest mesh
+  double size_ = 1.0;      // radius of gyration of the rest vertices (the gamma's length scale)
+  mutable std::unique_ptr<Binding> bindings_[2];
+  std::unique_ptr<Backend> backend_;
+  std::vector<int64_t> handles_;
+  bool handles_set_ = false;
+  SolveStats stats_;
+};
+
+// "cpu" always; "cuda" when built with CUDA and a device is usable.
+std::vector<std::string> available_devices();
+
+}  // namespace larap

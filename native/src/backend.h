@@ -1,0 +1,65 @@
+// The interface every solver backend (CPU, CUDA) implements. Internal: public headers never
+// include this file, and the CUDA backend hides every CUDA type behind it.
+//
+// The problem (see docs/method.md): lattice nodes c' (#N by 3), handles j = 1..m with weights
+// B (m by #N, 8 or 27 entries a row) and targets t (m by 3). Energy
+//   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} |(c'_i - c'_j) - R_i (c_i - c_j)|^2
+//            + sum_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
+// minimised by flip-flop: R_i from the 3x3 SVD of S_i = sum_j (c_i - c_j)(c'_i - c'_j)^T, then
+//   (2 gamma_eff L + B^T B + a I_anchored) c' = gamma_eff b + B^T t + a c_anchored,
+//   b_i = sum_{j in N(i)} (R_i + R_j)(c_i - c_j),
+// L the graph Laplacian of the lattice edges. Anchored nodes are those of lattice components
+// that hold no handle: they stay at rest.
+#pragma once
+#include <larap/binding.h>
+#include <larap/deformer.h>
+
+#include <Eigen/Core>
+#include <memory>
+#include <string>
+
+namespace larap {
+
+struct HandleSystem {
+  int64_t m = 0;                 // number of handles
+  int stencil = 8;               // entries per row of B
+  std::vector<int32_t> ids;      // m * stencil node ids
+  std::vector<double> weights;   // m * stencil weights
+  double gamma_eff = 0.0;        // ARAP weight in the form above
+  std::vector<uint8_t> anchored; // #N, 1 = held at rest
+  double anchor_weight = 0.0;    // a
+  double energy_scale = 1.0;     // reported energy = E * energy_scale (= 1 / (m D^2))
+};
+
+class Backend {
+ public:
+  virtual ~Backend() = default;
+  virtual std::string name() const = 0;  // "cpu" or "cuda"
+
+  // A new handle set (or new weights): prepare the linear solve. Keeps the current pose.
+  virtual void set_handles(const HandleSystem& handles) = 0;
+  // The current lattice pose (#N by 3).
+  virtual void set_pose(const RowMatrixX3d& nodes) = 0;
+  virtual void get_pose(RowMatrixX3d& nodes) const = 0;
+  // B c' for the current pose (m by 3).
+  virtual void handle_positions(RowMatrixX3d& out) const = 0;
+  // x -> R x + t on every node that is not anchored.
+  virtual void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) = 0;
+  // `iterations` flip-flop steps towards targets (m by 3); appends the energy after each
+  // step to stats.energy and adds stage times to stats.
+  virtual void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) = 0;
+  // Energy (scaled) of the current pose with its best rotations, without changing the pose.
+  virtual double energy(const RowMatrixX3d& targets) = 0;
+  // out (#V by 3, row-major) = rest vertices + W (pose - rest lattice); W from `binding`.
+  virtual void transfer(const Binding& binding, double* out, SolveStats& stats) = 0;
+  virtual void transfer(const Binding& binding, float* out, SolveStats& stats) = 0;
+};
+
+std::unique_ptr<Backend> make_cpu_backend(const Lattice& lattice, const RowMatrixX3d& vertices);
+
+// Defined in the CUDA part when built with it; otherwise throws DeviceError.
+std::unique_ptr<Backend> make_cuda_backend(const Lattice& lattice, const RowMatrixX3d& vertices);
+// Is a usable CUDA device present? When not, *why says why.
+bool cuda_available(std::string* why);
+
+}  // namespace larap

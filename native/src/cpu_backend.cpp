@@ -1,0 +1,196 @@
+// CPU backend: OpenMP over nodes for rotations and right-hand side, CHOLMOD (supernodal
+// Cholesky) for the global step, factorised once per handle set.
+#include <larap/errors.h>
+
+#ifdef LARAP_WITH_CHOLMOD
+#include <Eigen/CholmodSupport>
+#else
+#include <Eigen/SparseCholesky>  // fallback when CHOLMOD is not installed
+#endif
+#include <Eigen/Sparse>
+#include <chrono>
+
+#include "backend.h"
+#include "energy.h"
+
+namespace larap {
+namespace {
+
+#ifdef LARAP_WITH_CHOLMOD
+using Factor = Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>>;
+#else
+using Factor = Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>>;
+#endif
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+class CpuBackend final : public Backend {
+ public:
+  CpuBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
+      : lat_(lattice), V_(vertices), pose_(lattice.rest), R_(size_t(lattice.num_nodes())) {
+    node_energy_.resize(lattice.num_nodes());
+  }
+
+  std::string name() const override { return "cpu"; }
+
+  void set_handles(const HandleSystem& hs) override {
+    hs_ = hs;
+    const int64_t n = lat_.num_nodes();
+    std::vector<Eigen::Triplet<double>> trip;
+    trip.reserve(lat_.edges.size() * 4 + size_t(n));
+    const double g2 = 2.0 * hs.gamma_eff;
+    for (const auto& e : lat_.edges) {
+      trip.emplace_back(e[0], e[0], g2);
+      trip.emplace_back(e[1], e[1], g2);
+      trip.emplace_back(e[0], e[1], -g2);
+      trip.emplace_back(e[1], e[0], -g2);
+    }
+    for (int64_t i = 0; i < n; ++i)
+      if (hs.anchored[i]) trip.emplace_back(int(i), int(i), hs.anchor_weight);
+    Eigen::SparseMatrix<double> A(n, n);
+    A.setFromTriplets(trip.begin(), trip.end());
+    B_.resize(hs.m, n);
+    {
+      std::vector<Eigen::Triplet<double>> bt;
+      bt.reserve(size_t(hs.m) * hs.stencil);
+      for (int64_t j = 0; j < hs.m; ++j)
+        for (int k = 0; k < hs.stencil; ++k)
+          bt.emplace_back(int(j), hs.ids[j * hs.stencil + k], hs.weights[j * hs.stencil + k]);
+      B_.setFromTriplets(bt.begin(), bt.end());
+    }
+    Bt_ = B_.transpose();
+    A += Eigen::SparseMatrix<double>(Bt_ * B_);
+    A.makeCompressed();
+    llt_ = std::make_unique<Factor>();
+    llt_->compute(A);
+    if (llt_->info() != Eigen::Success)
+      throw std::runtime_error("the lattice system could not be factorised (not positive definite)");
+    rhs_.resize(n, 3);
+  }
+
+  void set_pose(const RowMatrixX3d& nodes) override { pose_ = nodes; }
+  void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
+
+  void handle_positions(RowMatrixX3d& out) const override { out = B_ * pose_; }
+
+  void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) override {
+    const int64_t n = lat_.num_nodes();
+    for (int64_t i = 0; i < n; ++i)
+      if (hs_.anchored.empty() || !hs_.anchored[i])
+        pose_.row(i) = (R * pose_.row(i).transpose() + t).transpose();
+  }
+
+  void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) override {
+    if (!llt_) throw StateError("set_handles must come before iterate");
+    const Eigen::MatrixX3d Btt = Bt_ * targets;  // fixed for this solve
+    for (int it = 0; it < iterations; ++it) {
+      auto t0 = Clock::now();
+      rotations();
+      stats.ms_rotations += ms_since(t0);
+
+      t0 = Clock::now();
+      right_hand_side(Btt);
+      stats.ms_rhs += ms_since(t0);
+
+      t0 = Clock::now();
+      const Eigen::MatrixX3d sol = llt_->solve(rhs_);
+      pose_ = sol;
+      stats.ms_solve += ms_since(t0);
+
+      stats.energy.push_back(evaluate(targets));
+    }
+  }
+
+  double energy(const RowMatrixX3d& targets) override {
+    rotations();
+    return evaluate(targets);
+  }
+
+  void transfer(const Binding& b, double* out, SolveStats& stats) override { transfer_any(b, out, stats); }
+  void transfer(const Binding& b, float* out, SolveStats& stats) override { transfer_any(b, out, stats); }
+
+ private:
+  template <typename T>
+  void transfer_any(const Binding& b, T* out, SolveStats& stats) {
+    const auto t0 = Clock::now();
+    const RowMatrixX3d disp = pose_ - lat_.rest;
+    larap::transfer(lat_, b, V_, disp, out);
+    stats.ms_transfer += ms_since(t0);
+  }
+
+  void rotations() {
+    const int64_t n = lat_.num_nodes();
+    const auto& P = pose_;
+    const auto& C = lat_.rest;
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+      Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
+        const int32_t j = lat_.adj[k];
+        S += (P.row(i) - P.row(j)).transpose() * (C.row(i) - C.row(j));
+      }
+      R_[i] = best_rotation_fast(S);
+    }
+  }
+
+  void right_hand_side(const Eigen::MatrixX3d& Btt) {
+    const int64_t n = lat_.num_nodes();
+    const auto& C = lat_.rest;
+    const double g = hs_.gamma_eff, a = hs_.anchor_weight;
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+      Eigen::Vector3d b = Eigen::Vector3d::Zero();
+      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
+        const int32_t j = lat_.adj[k];
+        b += (R_[i] + R_[j]) * (C.row(i) - C.row(j)).transpose();
+      }
+      b = g * b + Btt.row(i).transpose();
+      if (hs_.anchored[i]) b += a * C.row(i).transpose();
+      rhs_.row(i) = b.transpose();
+    }
+  }
+
+  // Energy of the current pose with the current rotations (scaled).
+  double evaluate(const RowMatrixX3d& targets) {
+    const int64_t n = lat_.num_nodes();
+    const auto& P = pose_;
+    const auto& C = lat_.rest;
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+      double e = 0.0;
+      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
+        const int32_t j = lat_.adj[k];
+        e += ((P.row(i) - P.row(j)).transpose() - R_[i] * (C.row(i) - C.row(j)).transpose()).squaredNorm();
+      }
+      e *= hs_.gamma_eff;
+      if (hs_.anchored[i]) e += hs_.anchor_weight * (P.row(i) - C.row(i)).squaredNorm();
+      node_energy_[i] = e;
+    }
+    double total = 0.0;
+    for (int64_t i = 0; i < n; ++i) total += node_energy_[i];  // fixed order: deterministic
+    total += (B_ * P - targets).squaredNorm();
+    return total * hs_.energy_scale;
+  }
+
+  const Lattice& lat_;
+  const RowMatrixX3d& V_;
+  RowMatrixX3d pose_;
+  std::vector<Eigen::Matrix3d> R_;
+  std::vector<double> node_energy_;
+  HandleSystem hs_;
+  Eigen::SparseMatrix<double, Eigen::RowMajor> B_;
+  Eigen::SparseMatrix<double> Bt_;
+  std::unique_ptr<Factor> llt_;
+  Eigen::MatrixX3d rhs_;
+};
+
+}  // namespace
+
+std::unique_ptr<Backend> make_cpu_backend(const Lattice& lattice, const RowMatrixX3d& vertices) {
+  return std::make_unique<CpuBackend>(lattice, vertices);
+}
+
+}  // namespace larap

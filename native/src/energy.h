@@ -1,0 +1,24 @@
+// Rotation fitting shared by the solver stages (host side).
+#pragma once
+#include <larap/mesh.h>
+
+#include <Eigen/Core>
+
+namespace larap {
+
+// The rotation R maximising tr(R^T S), i.e. minimising sum |q_j - R p_j|^2 for
+// S = sum q_j p_j^T. 3x3 SVD S = U diag(s) V^T, R = U V^T; a reflection is turned into the
+// nearest rotation by flipping the singular vector of the smallest singular value.
+Eigen::Matrix3d best_rotation(const Eigen::Matrix3d& S);
+
+// The same rotation, faster: closed-form polar decomposition for well-conditioned S without
+// reflection (the common case), the SVD above otherwise.
+Eigen::Matrix3d best_rotation_fast(const Eigen::Matrix3d& S);
+
+// Best rigid motion x -> R x + t taking rows of `from` to rows of `to` (least squares).
+// When the points are (nearly) collinear the rotation is not determined: R = I, t = mean offset.
+// Returns the residual sum of squares after the motion.
+double rigid_fit(const RowMatrixX3d& from, const RowMatrixX3d& to, Eigen::Matrix3d& R,
+                 Eigen::Vector3d& t);
+
+}  // namespace larap

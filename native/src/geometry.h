@@ -1,0 +1,44 @@
+// Small exact geometric predicates used by the lattice builder.
+#pragma once
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+
+namespace larap::geometry {
+
+// Does triangle (a, b, c) overlap the axis-aligned box centre +- half? Separating-axis test over
+// the 13 candidate axes: the box's 3 face normals, the triangle's normal, and the 9 cross products
+// of box axes with triangle edges. Degenerate (zero-area) triangles are handled: a zero axis
+// separates nothing and is skipped.
+inline bool triangle_box_overlap(const Eigen::Vector3d& centre, const Eigen::Vector3d& half,
+                                 const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                                 const Eigen::Vector3d& c) {
+  const Eigen::Vector3d v0 = a - centre, v1 = b - centre, v2 = c - centre;
+  // Box face normals: compare the triangle's extent with the box.
+  for (int k = 0; k < 3; ++k) {
+    const double lo = std::min({v0[k], v1[k], v2[k]});
+    const double hi = std::max({v0[k], v1[k], v2[k]});
+    if (lo > half[k] || hi < -half[k]) return false;
+  }
+  const Eigen::Vector3d e[3] = {v1 - v0, v2 - v1, v0 - v2};
+  auto separated = [&](const Eigen::Vector3d& axis) {
+    if (axis.squaredNorm() == 0.0) return false;
+    const double p0 = axis.dot(v0), p1 = axis.dot(v1), p2 = axis.dot(v2);
+    const double r = half.x() * std::abs(axis.x()) + half.y() * std::abs(axis.y()) +
+                     half.z() * std::abs(axis.z());
+    return std::min({p0, p1, p2}) > r || std::max({p0, p1, p2}) < -r;
+  };
+  // Triangle normal.
+  if (separated(e[0].cross(e[1]))) return false;
+  // Edge cross products.
+  for (int i = 0; i < 3; ++i)
+    for (int k = 0; k < 3; ++k) {
+      Eigen::Vector3d unit = Eigen::Vector3d::Zero();
+      unit[k] = 1.0;
+      if (separated(unit.cross(e[i]))) return false;
+    }
+  return true;
+}
+
+}  // namespace larap::geometry

@@ -1,0 +1,424 @@
+#include <larap/errors.h>
+#include <larap/lattice.h>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <numeric>
+#include <string>
+
+#include "geometry.h"
+
+namespace larap {
+namespace {
+
+enum CellMark : uint8_t {
+  kSurface = 1,
+  kInside = 2,
+  kVertex = 4,
+  kDilation = 8,
+  kOutside = 16,  // reached by the flood fill from the grid border (build-time only)
+};
+constexpr uint8_t kKept = kSurface | kInside | kVertex | kDilation;
+constexpr int kPad = 2;  // empty border cells around the bounding box (dilation + flood fill)
+
+int64_t physical_memory_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return int64_t(8) << 30;
+  return static_cast<int64_t>(pages) * page;
+}
+
+std::string mib(double bytes) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.0f MiB", bytes / (1024.0 * 1024.0));
+  return buf;
+}
+
+struct Grid {
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  double h = 0.0;
+  Eigen::Vector3i dims = Eigen::Vector3i::Zero();
+  std::vector<uint8_t> marks;
+  int64_t index(int x, int y, int z) const {
+    return x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z);
+  }
+  int64_t size() const { return int64_t(dims.x()) * dims.y() * dims.z(); }
+  Eigen::Vector3i cell_of(const Eigen::Vector3d& p) const {
+    Eigen::Vector3i c;
+    for (int a = 0; a < 3; ++a) {
+      const double f = std::floor((p[a] - origin[a]) / h);
+      c[a] = static_cast<int>(std::clamp(f, 0.0, double(dims[a] - 1)));
+    }
+    return c;
+  }
+};
+
+Eigen::Vector3i grid_dims(const Eigen::Vector3d& extent, double h) {
+  Eigen::Vector3i d;
+  for (int a = 0; a < 3; ++a) {
+    const double n = std::floor(extent[a] / h) + 1 + 2 * kPad;
+    if (!(n < 1e9)) {
+      d[a] = std::numeric_limits<int>::max();
+    } else {
+      d[a] = static_cast<int>(n);
+    }
+  }
+  return d;
+}
+
+void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes) {
+  const double cells = double(dims.x()) * dims.y() * dims.z();
+  const double bytes = double(Lattice::estimate_bytes(dims));
+  const bool too_many = dims.maxCoeff() >= (1 << 20) || cells > 2.0e9;
+  if (too_many || bytes > double(max_bytes)) {
+    throw OutOfMemory("the lattice grid at cell size " + std::to_string(h) + " would be " +
+                      std::to_string(dims.x()) + " x " + std::to_string(dims.y()) + " x " +
+                      std::to_string(dims.z()) + " cells and need about " + mib(bytes) +
+                      " (limit " + mib(double(max_bytes)) +
+                      "); use fewer cells or a larger cell size");
+  }
+}
+
+// Marks the cells every triangle overlaps (exact separating-axis test).
+void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris) {
+  const double h = g.h;
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
+  const int64_t nt = static_cast<int64_t>(tris.size());
+#pragma omp parallel for schedule(dynamic, 4096)
+  for (int64_t t = 0; t < nt; ++t) {
+    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
+    const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+    Eigen::Vector3i c0, c1;
+    for (int k = 0; k < 3; ++k) {
+      c0[k] = std::max(0, int(std::floor((lo[k] - g.origin[k]) / h - 1e-7)));
+      c1[k] = std::min(g.dims[k] - 1, int(std::floor((hi[k] - g.origin[k]) / h + 1e-7)));
+    }
+    for (int z = c0.z(); z <= c1.z(); ++z)
+      for (int y = c0.y(); y <= c1.y(); ++y)
+        for (int x = c0.x(); x <= c1.x(); ++x) {
+          const int64_t id = g.index(x, y, z);
+          if (g.marks[id] & kSurface) continue;
+          const Eigen::Vector3d center = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
+          if (geometry::triangle_box_overlap(center, half, a, b, c)) {
+#pragma omp atomic update
+            g.marks[id] |= kSurface;
+          }
+        }
+  }
+}
+
+// 6-connected flood fill from the border through cells no triangle touches.
+void mark_outside(Grid& g) {
+  std::vector<int64_t> stack;
+  auto push = [&](int x, int y, int z) {
+    const int64_t id = g.index(x, y, z);
+    if (g.marks[id] & (kSurface | kOutside)) return;
+    g.marks[id] |= kOutside;
+    stack.push_back(id);
+  };
+  const Eigen::Vector3i& d = g.dims;
+  for (int z = 0; z < d.z(); ++z)
+    for (int y = 0; y < d.y(); ++y)
+      for (int x = 0; x < d.x(); ++x)
+        if (x == 0 || y == 0 || z == 0 || x == d.x() - 1 || y == d.y() - 1 || z == d.z() - 1)
+          push(x, y, z);
+  const int64_t sy = d.x();
+  while (!stack.empty()) {
+    const int64_t id = stack.back();
+    stack.pop_back();
+    const int x = int(id % d.x()), y = int((id / sy) % d.y()), z = int(id / (sy * d.y()));
+    if (x > 0) push(x - 1, y, z);
+    if (x + 1 < d.x()) push(x + 1, y, z);
+    if (y > 0) push(x, y - 1, z);
+    if (y + 1 < d.y()) push(x, y + 1, z);
+    if (z > 0) push(x, y, z - 1);
+    if (z + 1 < d.z()) push(x, y, z + 1);
+  }
+}
+
+// Ray parity votes: for each axis, rays through the cell-centre columns; a cell collects one vote
+// per ray direction (+ and -) that crosses the surface an odd number of times before reaching it.
+std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
+                                  const std::vector<Eigen::Vector3i>& tris) {
+  std::vector<uint8_t> votes(static_cast<size_t>(g.size()), 0);
+  // Columns are offset from cell centres by a tiny irrational-looking amount so that rays through
+  // vertices and edges of grid-aligned meshes (a cube exactly on cell centres) are unlikely.
+  const double jitter_b = 0.5 + 1.3717e-6, jitter_c = 0.5 + 2.9153e-6;
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    const int nb = g.dims[b], nc = g.dims[c], na = g.dims[a];
+    std::vector<std::vector<double>> cols(static_cast<size_t>(nb) * nc);
+    for (const auto& t : tris) {
+      Eigen::Vector3d p[3];
+      for (int k = 0; k < 3; ++k) p[k] = (V.row(t[k]).transpose() - g.origin) / g.h;
+      const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - jitter_b;
+      const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - jitter_b;
+      const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - jitter_c;
+      const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - jitter_c;
+      const int jb0 = std::max(0, int(std::ceil(bmin))), jb1 = std::min(nb - 1, int(std::floor(bmax)));
+      const int jc0 = std::max(0, int(std::ceil(cmin))), jc1 = std::min(nc - 1, int(std::floor(cmax)));
+      if (jb0 > jb1 || jc0 > jc1) continue;
+      // Signed area in the (b, c) plane.
+      const double area = (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) -
+                          (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
+      if (area == 0.0) continue;  // parallel to the ray
+      for (int jc = jc0; jc <= jc1; ++jc)
+        for (int jb = jb0; jb <= jb1; ++jb) {
+          const double qb = jb + jitter_b, qc = jc + jitter_c;
+          double w[3];
+          for (int k = 0; k < 3; ++k) {
+            const Eigen::Vector3d& u = p[(k + 1) % 3];
+            const Eigen::Vector3d& v = p[(k + 2) % 3];
+            w[k] = (u[b] - qb) * (v[c] - qc) - (v[b] - qb) * (u[c] - qc);
+          }
+          const bool inside = (w[0] >= 0 && w[1] >= 0 && w[2] >= 0) ||
+                              (w[0] <= 0 && w[1] <= 0 && w[2] <= 0);
+          if (!inside) continue;
+          const double s = w[0] + w[1] + w[2];
+          const double ta = (w[0] * p[0][a] + w[1] * p[1][a] + w[2] * p[2][a]) / s;
+          cols[size_t(jc) * nb + jb].push_back(ta);
+        }
+    }
+#pragma omp parallel for schedule(dynamic, 64)
+    for (int64_t col = 0; col < int64_t(cols.size()); ++col) {
+      auto& xs = cols[col];
+      if (xs.empty()) continue;
+      std::sort(xs.begin(), xs.end());
+      // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
+      xs.erase(std::unique(xs.begin(), xs.end(),
+                           [](double u, double v) { return std::abs(u - v) < 1e-9; }),
+               xs.end());
+      const int jb = int(col % nb), jc = int(col / nb);
+      const int total = int(xs.size());
+      int below = 0;
+      for (int k = 0; k < na; ++k) {
+        const double centre = k + 0.5;
+        while (below < total && xs[below] < centre) ++below;
+        Eigen::Vector3i cell;
+        cell[a] = k;
+        cell[b] = jb;
+        cell[c] = jc;
+        const int64_t id = g.index(cell.x(), cell.y(), cell.z());
+        votes[id] += uint8_t((below & 1) + ((total - below) & 1));
+      }
+    }
+  }
+  return votes;
+}
+
+Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
+              const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes) {
+  Grid g;
+  g.h = h;
+  g.dims = grid_dims(hi - lo, h);
+  check_memory(g.dims, h, max_bytes);
+  g.origin = lo - Eigen::Vector3d::Constant(kPad * h);
+  g.marks.assign(static_cast<size_t>(g.size()), 0);
+
+  mark_surface(g, mesh.vertices, tris);
+  const int64_t n = mesh.num_vertices();
+  std::vector<int64_t> vertex_cells(static_cast<size_t>(n));
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const Eigen::Vector3i c = g.cell_of(mesh.vertices.row(i).transpose());
+    vertex_cells[i] = g.index(c.x(), c.y(), c.z());
+  }
+  for (int64_t id : vertex_cells) g.marks[id] |= kVertex;
+
+  mark_outside(g);
+  const std::vector<uint8_t> votes = parity_votes(g, mesh.vertices, tris);
+  const int64_t size = g.size();
+  for (int64_t id = 0; id < size; ++id) {
+    const bool enclosed = !(g.marks[id] & (kOutside | kSurface));
+    if (enclosed || votes[id] >= 4) g.marks[id] |= kInside;
+  }
+
+  // Dilation: the 3x3x3 block around every vertex cell, so B-spline stencils are complete.
+  const Eigen::Vector3i& d = g.dims;
+  for (int z = 1; z + 1 < d.z(); ++z)
+    for (int y = 1; y + 1 < d.y(); ++y)
+      for (int x = 1; x + 1 < d.x(); ++x) {
+        if (!(g.marks[g.index(x, y, z)] & kVertex)) continue;
+        for (int dz = -1; dz <= 1; ++dz)
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) g.marks[g.index(x + dx, y + dy, z + dz)] |= kDilation;
+      }
+  return g;
+}
+
+int64_t count_kept(const Grid& g) {
+  int64_t k = 0;
+  for (uint8_t m : g.marks) k += (m & kKept) != 0;
+  return k;
+}
+
+}  // namespace
+
+int64_t Lattice::estimate_bytes(const Eigen::Vector3i& dims) {
+  const double cells = double(dims.x()) * dims.y() * dims.z();
+  const double nodes = double(dims.x() + 1) * (dims.y() + 1) * (dims.z() + 1);
+  // marks + votes (1 + 1 B/cell), cell map (4 B/cell), node map (4 B/node), crossing lists.
+  const double bytes = cells * 6.0 + nodes * 4.0 + 64.0 * (dims.x() * double(dims.y()) +
+                                                           dims.y() * double(dims.z()) +
+                                                           dims.z() * double(dims.x()));
+  return bytes > 9e18 ? std::numeric_limits<int64_t>::max() : static_cast<int64_t>(bytes);
+}
+
+int32_t Lattice::node_at(int x, int y, int z) const {
+  if (x < 0 || y < 0 || z < 0 || x > dims.x() || y > dims.y() || z > dims.z()) return -1;
+  return node_grid_[x + int64_t(dims.x() + 1) * (y + int64_t(dims.y() + 1) * z)];
+}
+
+int32_t Lattice::cell_at(int x, int y, int z) const {
+  if (x < 0 || y < 0 || z < 0 || x >= dims.x() || y >= dims.y() || z >= dims.z()) return -1;
+  return cell_grid_[x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z)];
+}
+
+Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
+  if (mesh.num_vertices() == 0) throw InvalidInput("the mesh has no vertices");
+  if (!(options.cell_size >= 0.0) || !std::isfinite(options.cell_size))
+    throw InvalidInput("cell_size must be a positive finite number, got " +
+                       std::to_string(options.cell_size));
+  if (options.cells < 0)
+    throw InvalidInput("cells must be positive, got " + std::to_string(options.cells));
+  const int64_t max_bytes = options.max_bytes > 0 ? options.max_bytes : physical_memory_bytes() / 2;
+
+  const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
+  const Eigen::Vector3d hi = mesh.vertices.colwise().maxCoeff().transpose();
+  const Eigen::Vector3d extent = hi - lo;
+  const double diag = extent.norm();
+  const std::vector<Eigen::Vector3i> tris = triangulate(mesh);
+
+  Grid grid;
+  if (options.cell_size > 0.0) {
+    grid = voxelize(mesh, tris, lo, hi, options.cell_size, max_bytes);
+  } else {
+    if (!(diag > 0.0))
+      throw InvalidInput("all vertices coincide, so the lattice has no extent; give cell_size");
+    const int64_t target = options.cells > 0 ? options.cells : kDefaultCells;
+    if (target > int64_t(2e9))
+      throw OutOfMemory("cells=" + std::to_string(target) + " is beyond what a lattice can hold");
+    // Initial guess: the target number of cubes filling the (thickened) bounding box.
+    double box = 1.0;
+    for (int a = 0; a < 3; ++a) box *= std::max(extent[a], diag / 50.0);
+    double h = std::cbrt(box / double(target));
+    // The kept count grows like h^-3 for solids and h^-2 for shells: correct h a few times.
+    double best_err = std::numeric_limits<double>::infinity();
+    for (int pass = 0; pass < 5; ++pass) {
+      check_memory(grid_dims(extent, h), h, max_bytes);
+      Grid g = voxelize(mesh, tris, lo, hi, h, max_bytes);
+      const int64_t kept = count_kept(g);
+      const double ratio = double(kept) / double(target);
+      const double err = std::abs(std::log(ratio));
+      if (err < best_err) {
+        best_err = err;
+        grid = std::move(g);
+      }
+      if (err < std::log(1.15)) break;
+      h *= std::pow(ratio, 1.0 / 2.6);
+    }
+  }
+
+  Lattice lat;
+  lat.origin = grid.origin;
+  lat.h = grid.h;
+  lat.dims = grid.dims;
+  const Eigen::Vector3i& d = grid.dims;
+  lat.cell_grid_.assign(static_cast<size_t>(grid.size()), -1);
+  const int64_t nnode_grid = int64_t(d.x() + 1) * (d.y() + 1) * (d.z() + 1);
+  lat.node_grid_.assign(static_cast<size_t>(nnode_grid), -1);
+  auto node_index = [&](int x, int y, int z) {
+    return x + int64_t(d.x() + 1) * (y + int64_t(d.y() + 1) * z);
+  };
+
+  // Cells in grid order (deterministic), then their corners.
+  for (int z = 0; z < d.z(); ++z)
+    for (int y = 0; y < d.y(); ++y)
+      for (int x = 0; x < d.x(); ++x) {
+        const uint8_t m = grid.marks[grid.index(x, y, z)];
+        if (!(m & kKept)) continue;
+        lat.cell_grid_[grid.index(x, y, z)] = int32_t(lat.cell_coords.size());
+        lat.cell_coords.emplace_back(x, y, z);
+        lat.cell_kind.push_back(m & kKept);
+        for (int c = 0; c < 8; ++c)
+          lat.node_grid_[node_index(x + (c & 1), y + ((c >> 1) & 1), z + (c >> 2))] = 0;
+      }
+  if (lat.cell_coords.size() > size_t(std::numeric_limits<int32_t>::max() / 8))
+    throw OutOfMemory("the lattice has too many cells (" + std::to_string(lat.cell_coords.size()) + ")");
+  for (int z = 0; z <= d.z(); ++z)
+    for (int y = 0; y <= d.y(); ++y)
+      for (int x = 0; x <= d.x(); ++x) {
+        int32_t& slot = lat.node_grid_[node_index(x, y, z)];
+        if (slot < 0) continue;
+        slot = int32_t(lat.node_coords.size());
+        lat.node_coords.emplace_back(x, y, z);
+      }
+  const int64_t nn = lat.num_nodes();
+  lat.rest.resize(nn, 3);
+  for (int64_t i = 0; i < nn; ++i)
+    lat.rest.row(i) = (lat.origin + lat.h * lat.node_coords[i].cast<double>()).transpose();
+  lat.cell_nodes.resize(lat.cell_coords.size());
+  for (size_t k = 0; k < lat.cell_coords.size(); ++k) {
+    const Eigen::Vector3i& cc = lat.cell_coords[k];
+    for (int c = 0; c < 8; ++c)
+      lat.cell_nodes[k][c] = lat.node_at(cc.x() + (c & 1), cc.y() + ((c >> 1) & 1), cc.z() + (c >> 2));
+  }
+
+  // Edges: the axis-aligned edge from node n to n + e_a exists when one of the (up to four)
+  // cells around it is kept.
+  std::vector<std::vector<int32_t>> nbrs(static_cast<size_t>(nn));
+  for (int64_t i = 0; i < nn; ++i) {
+    const Eigen::Vector3i& p = lat.node_coords[i];
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3, c = (a + 2) % 3;
+      Eigen::Vector3i q = p;
+      q[a] += 1;
+      const int32_t j = lat.node_at(q.x(), q.y(), q.z());
+      if (j < 0) continue;
+      bool exists = false;
+      for (int s = 0; s < 4 && !exists; ++s) {
+        Eigen::Vector3i cell = p;
+        cell[b] -= (s & 1);
+        cell[c] -= (s >> 1);
+        exists = lat.cell_at(cell.x(), cell.y(), cell.z()) >= 0;
+      }
+      if (!exists) continue;
+      lat.edges.push_back({int32_t(i), j});
+      nbrs[i].push_back(j);
+      nbrs[j].push_back(int32_t(i));
+    }
+  }
+  lat.adj_offsets.assign(static_cast<size_t>(nn + 1), 0);
+  for (int64_t i = 0; i < nn; ++i) {
+    std::sort(nbrs[i].begin(), nbrs[i].end());
+    lat.adj_offsets[i + 1] = lat.adj_offsets[i] + int32_t(nbrs[i].size());
+  }
+  lat.adj.reserve(static_cast<size_t>(lat.adj_offsets[nn]));
+  for (int64_t i = 0; i < nn; ++i) lat.adj.insert(lat.adj.end(), nbrs[i].begin(), nbrs[i].end());
+
+  // Connected components (union-find over edges).
+  std::vector<int32_t> parent(static_cast<size_t>(nn));
+  std::iota(parent.begin(), parent.end(), 0);
+  auto find = [&](int32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  for (const auto& e : lat.edges) {
+    const int32_t a = find(e[0]), b = find(e[1]);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+  lat.component.assign(static_cast<size_t>(nn), -1);
+  std::vector<int32_t> label(static_cast<size_t>(nn), -1);
+  for (int64_t i = 0; i < nn; ++i) {
+    const int32_t r = find(int32_t(i));
+    if (label[r] < 0) label[r] = lat.num_components++;
+    lat.component[i] = label[r];
+  }
+  return lat;
+}
+
+}  // namespace larap

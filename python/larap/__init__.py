@@ -1,0 +1,16 @@
+"""LARAP: as-rigid-as-possible deformation of meshes through a volumetric lattice.
+
+    import larap
+    V, F = larap.load_mesh("bunny.obj")
+    d = larap.Deformer(V, F)                 # lattice + binding
+    d.set_handles([10, 200, 3000])           # handle vertex ids (prefactorises)
+    X = d.solve(targets)                     # targets: (3, 3) -> X: (n, 3) deformed vertices
+
+See README.md and docs/method.md.
+"""
+from ._native import _core  # noqa: F401  (clear ImportError when the build is missing)
+from .deformer import Deformer, available_devices
+from .io import faces_to_csr, load_mesh, save_mesh
+
+__all__ = ["Deformer", "available_devices", "load_mesh", "save_mesh", "faces_to_csr"]
+__version__ = "0.1.0"

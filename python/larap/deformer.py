@@ -1,0 +1,179 @@
+"""The numpy-facing Deformer: validates every input, then hands it to the native engine."""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from ._native import _core
+from .io import faces_to_csr
+
+WEIGHTS = ("trilinear", "bspline")
+DEVICES = ("cpu", "cuda", "auto")
+
+
+def available_devices() -> list[str]:
+    """Devices this build can use now: always "cpu", plus "cuda" when a usable GPU is present."""
+    return list(_core.available_devices())
+
+
+def _points(name: str, array, rows: int | None = None) -> np.ndarray:
+    """(rows, 3) float64 C-contiguous copy-or-view of `array`, finite, with clear errors."""
+    try:
+        a = np.asarray(array)
+    except Exception as exc:  # ragged lists and the like
+        raise ValueError(f"{name} must be an (n, 3) array of numbers: {exc}") from None
+    if a.dtype == object or not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
+        raise TypeError(f"{name} must hold numbers, got dtype {a.dtype}")
+    if a.dtype == np.bool_ or np.issubdtype(a.dtype, np.complexfloating):
+        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} should have shape ({'n' if rows is None else rows}, 3), shape is {a.shape}")
+    if rows is not None and a.shape[0] != rows:
+        raise ValueError(f"{name} should have shape ({rows}, 3), shape is {a.shape}")
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise ValueError(f"{name}[{row}] is not finite: {a[row].tolist()}")
+    return a
+
+
+def _positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if value <= 0:
+        raise ValueError(f"{name} must be positive, got {value}")
+    return int(value)
+
+
+def _positive_float(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value) or value <= 0.0:
+        raise ValueError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+class Deformer:
+    """As-rigid-as-possible deformation of a mesh through a volumetric lattice.
+
+    vertices: (n, 3) rest positions (any real dtype; copied to float64).
+    faces: (m, k) integer array, a list of polygons of any sizes, or None for a point cloud.
+    cells: approximate number of lattice cells (default about 6000), or
+    cell_size: the lattice cell edge length (give one of the two).
+    weights: "trilinear" (8 nodes, fast, for dragging) or "bspline" (27 nodes, C1, final quality).
+    gamma: rigidity, scale-free: the same value behaves the same at any model size, lattice
+        resolution and handle count (docs/method.md). Larger is stiffer; handles are soft.
+    device: "cpu", "cuda" or "auto" (CUDA when a usable GPU exists, else the CPU; see .device).
+    """
+
+    def __init__(self, vertices, faces=None, *, cells=None, cell_size=None, weights="trilinear",
+                 gamma=0.1, device="cpu", max_bytes=None):
+        V = _points("vertices", vertices)
+        if V.shape[0] == 0:
+            raise ValueError("vertices is empty: the mesh needs at least one vertex")
+        if faces is None:
+            offsets, indices = np.zeros(1, np.int64), np.zeros(0, np.int64)
+        else:
+            offsets, indices = faces_to_csr(faces, V.shape[0])
+        if cells is not None and cell_size is not None:
+            raise ValueError("give cells or cell_size, not both")
+        n_cells = _positive_int("cells", cells) if cells is not None else 0
+        size = _positive_float("cell_size", cell_size) if cell_size is not None else 0.0
+        if weights not in WEIGHTS:
+            raise ValueError(f"weights must be one of {WEIGHTS}, got {weights!r}")
+        gamma = _positive_float("gamma", gamma)
+        if device not in DEVICES:
+            raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
+        limit = 0 if max_bytes is None else _positive_int("max_bytes", max_bytes)
+        self._n = V.shape[0]
+        self._core = _core.Deformer(V, offsets, indices, n_cells, size, weights, gamma, device, limit)
+        self._handles_set = False
+
+    # ------------------------------------------------------------------ posing
+    def set_handles(self, indices) -> None:
+        """Handle vertices: a 1-D array of unique vertex ids. Factorises the linear system once;
+        every later solve() with this set reuses it. An empty set gives the rest pose."""
+        a = np.asarray(indices)
+        if a.dtype == np.bool_ or not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
+            raise TypeError(f"handle indices must be integers, got dtype {a.dtype}")
+        if a.ndim != 1:
+            raise ValueError(f"handle indices must be a 1-D array, shape is {a.shape}")
+        self._core.set_handles(np.ascontiguousarray(a, dtype=np.int64))
+        self._handles_set = True
+
+    def solve(self, targets, iterations: int = 5, *, out=None) -> np.ndarray:
+        """Deformed vertices (n, 3) for handle targets (len(handles), 3), same order as the
+        handles. Warm-starts from the previous pose; `iterations` flip-flop steps (3-8 for
+        interaction, more for a converged result). `out`: optional C-contiguous (n, 3) float32 or
+        float64 array written in place and returned (float32 suits Blender's foreach_set)."""
+        if not self._handles_set:
+            raise RuntimeError("solve() needs set_handles() first")
+        if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
+            raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
+        T = _points("targets", targets, rows=len(self._core.handles))
+        if out is not None:
+            if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float64):
+                raise TypeError("out must be a float32 or float64 numpy array")
+            if out.shape != (self._n, 3):
+                raise ValueError(f"out should have shape ({self._n}, 3), shape is {out.shape}")
+            if not out.flags.c_contiguous or not out.flags.writeable:
+                raise ValueError("out must be C-contiguous and writeable")
+        return self._core.solve(T, int(iterations), out)
+
+    def reset(self) -> None:
+        """Forget the pose: the next solve starts from the rest lattice."""
+        self._core.reset()
+
+    @property
+    def weights(self) -> str:
+        return self._core.weights
+
+    @weights.setter
+    def weights(self, value: str) -> None:
+        if value not in WEIGHTS:
+            raise ValueError(f"weights must be one of {WEIGHTS}, got {value!r}")
+        self._core.weights = value
+
+    @property
+    def gamma(self) -> float:
+        return self._core.gamma
+
+    @gamma.setter
+    def gamma(self, value: float) -> None:
+        self._core.gamma = _positive_float("gamma", value)
+
+    # ------------------------------------------------------------------ inspection
+    num_vertices = property(lambda self: self._core.num_vertices, doc="number of mesh vertices")
+    num_nodes = property(lambda self: self._core.num_nodes, doc="number of lattice nodes")
+    num_cells = property(lambda self: self._core.num_cells, doc="number of lattice cells")
+    num_components = property(lambda self: self._core.num_components, doc="connected lattice parts")
+    cell_size = property(lambda self: self._core.cell_size, doc="lattice cell edge length")
+    device = property(lambda self: self._core.device, doc='"cpu" or "cuda": the backend that runs')
+    handles = property(lambda self: self._core.handles, doc="handle vertex ids (1-D int64)")
+    diagonal = property(lambda self: self._core.diagonal, doc="bounding-box diagonal of the mesh")
+
+    @property
+    def stats(self) -> dict:
+        """Last solve: "energy" (list, one per iteration, non-increasing), "iterations",
+        milliseconds "ms_rotations", "ms_rhs", "ms_solve", "ms_transfer", "ms_total"; and
+        "ms_factorize" (last set_handles), "ms_lattice", "ms_binding" (construction)."""
+        return self._core.stats
+
+    def lattice_rest(self) -> np.ndarray:
+        """(N, 3) rest positions of the lattice nodes."""
+        return self._core.lattice_rest()
+
+    def lattice_deformed(self) -> np.ndarray:
+        """(N, 3) lattice node positions of the current pose."""
+        return self._core.lattice_deformed()
+
+    def lattice_edges(self) -> np.ndarray:
+        """(E, 2) node index pairs of the lattice edges (the ARAP neighbourhood)."""
+        return self._core.lattice_edges()
+
+    def __repr__(self) -> str:
+        return (f"<larap.Deformer {self.num_vertices} vertices, {self.num_nodes} nodes, "
+                f"{self.num_cells} cells of {self.cell_size:.4g}, {self.weights}, {self.device}>")

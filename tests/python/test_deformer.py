@@ -1,0 +1,235 @@
+# Run: PYTHONPATH=python /usr/bin/python3 -m pytest tests/python/test_deformer.py
+"""Properties of the CPU engine: rest pose, rigid motions, energy, volume, separate parts."""
+import numpy as np
+import pytest
+from conftest import diagonal, rotation, triangles, volume
+
+import larap
+from larap import shapes
+
+WEIGHTS = ["trilinear", "bspline"]
+
+
+@pytest.fixture(scope="module")
+def tube():
+    return shapes.tube(length=4.0, radius=0.5, segments=32, rings=64)
+
+
+def spread_handles(V, k=40, seed=1):
+    return np.random.default_rng(seed).choice(len(V), k, replace=False)
+
+
+@pytest.mark.parametrize("weights", WEIGHTS)
+def test_rest_targets_give_rest_pose(tube, weights):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=2000, weights=weights)
+    idx = spread_handles(V)
+    d.set_handles(idx)
+    X = d.solve(V[idx], iterations=5)
+    assert np.abs(X - V).max() <= 1e-6 * diagonal(V)
+
+
+@pytest.mark.parametrize("weights", WEIGHTS)
+def test_rigid_motion_of_handles_gives_rigid_pose(tube, weights):
+    V, F = tube
+    R, t = rotation([1, 2, 3], 60), np.array([1.0, -2.0, 0.5])
+    d = larap.Deformer(V, F, cells=2000, weights=weights)
+    idx = spread_handles(V)
+    d.set_handles(idx)
+    X = d.solve(V[idx] @ R.T + t, iterations=60)
+    assert np.abs(X - (V @ R.T + t)).max() <= 1e-3 * diagonal(V)
+
+
+def bend_setup(V, angle=90.0):
+    """Base fixed, tip turned about z around the pivot that keeps the centreline length."""
+    base = np.flatnonzero(V[:, 0] < 0.45)
+    tip = np.flatnonzero(V[:, 0] > 3.55)
+    free = 3.55 - 0.45
+    r = free / np.radians(angle)
+    pivot = np.array([2.0, r - free / 2.0, 0.0]) if angle == 90.0 else np.array([2.0, 0.0, 0.0])
+    R = rotation([0, 0, 1], angle)
+    idx = np.concatenate([base, tip])
+    T = np.concatenate([V[base], (V[tip] - pivot) @ R.T + pivot])
+    return idx, T
+
+
+def test_rigid_jump_after_earlier_solves(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=2000)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    d.solve(T, iterations=10)  # a bent pose first
+    R, t = rotation([1, 2, 3], 60), np.array([1.0, -2.0, 0.5])
+    X = d.solve(V[idx] @ R.T + t, iterations=60)
+    assert np.abs(X - (V @ R.T + t)).max() <= 1e-3 * diagonal(V)
+
+
+@pytest.mark.parametrize("weights", WEIGHTS)
+def test_energy_never_increases(tube, weights):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=2000, weights=weights)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    d.solve(T, iterations=25)
+    e = np.array(d.stats["energy"])
+    assert len(e) == 25
+    assert e[0] > 0
+    assert np.all(np.diff(e) <= 1e-9 * e[0]), e
+    # and the warm start continues downhill
+    d.solve(T, iterations=5)
+    assert d.stats["energy"][0] <= e[-1] * (1 + 1e-9)
+
+
+def test_bend_keeps_volume_and_round_sections(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, weights="bspline")  # default resolution
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    X = d.solve(T, iterations=40)
+    tris = triangles(F)
+    assert abs(volume(X, tris) / volume(V, tris) - 1.0) < 0.05
+    # handles reach their targets
+    assert np.linalg.norm(X[idx] - T, axis=1).max() < 0.01 * diagonal(V)
+    # the bend happened: the tip points along +y now
+    tip = X[np.flatnonzero(V[:, 0] > 3.9)].mean(0) - X[np.flatnonzero((V[:, 0] > 3.5) & (V[:, 0] < 3.6))].mean(0)
+    assert tip[1] > 0.9 * np.linalg.norm(tip)
+    # cross-sections in the bend stay round: each ring keeps its radius within 5%
+    segments = 32
+    for ring in (24, 32, 40):  # rings along the free part
+        ids = np.arange(ring * segments, (ring + 1) * segments)
+        P = X[ids]
+        r = np.linalg.norm(P - P.mean(0), axis=1)
+        assert r.std() / r.mean() < 0.05, (ring, r.std() / r.mean())
+        assert abs(r.mean() / 0.5 - 1.0) < 0.05, (ring, r.mean())
+
+
+def test_handles_reach_targets_scale_free(tube):
+    """The same gamma behaves the same on a tiny and a huge model."""
+    V, F = tube
+    idx, T = bend_setup(V)
+    results = []
+    for scale in (0.025, 100.0):
+        d = larap.Deformer(V * scale, F, cells=2000)
+        d.set_handles(idx)
+        X = d.solve(T * scale, iterations=20)
+        results.append(X / scale)
+    assert np.abs(results[0] - results[1]).max() < 1e-6 * diagonal(V)
+
+
+def test_gamma_is_resolution_independent(tube):
+    V, F = tube
+    idx, T = bend_setup(V)
+    errs = []
+    for cells in (1500, 8000):
+        d = larap.Deformer(V, F, cells=cells)
+        d.set_handles(idx)
+        X = d.solve(T, iterations=30)
+        errs.append(np.linalg.norm(X[idx] - T, axis=1).mean())
+    assert 0.5 < errs[0] / errs[1] < 2.0, errs
+
+
+def head_with_eyes():
+    head = shapes.sphere((0, 0, 0), 1.0, 24, 48)
+    eyes = [shapes.sphere((0.8, s * 0.35, 0.3), 0.25, 10, 20) for s in (-1, 1)]
+    V, F = shapes.concat(head, *eyes)
+    n_head = len(head[0])
+    return V, F, n_head
+
+
+def test_separate_parts_follow_the_body():
+    V, F, n_head = head_with_eyes()
+    d = larap.Deformer(V, F, cells=4000)
+    assert d.num_components == 1  # the eyes' cells are inside the head's: one lattice
+    Vh = V[:n_head]
+    top = np.flatnonzero(Vh[:, 2] > 0.75)
+    bottom = np.flatnonzero(Vh[:, 2] < -0.75)
+    idx = np.concatenate([top, bottom])
+    R = rotation([0, 1, 0], -40)
+    T = np.concatenate([V[top] @ R.T, V[bottom] @ R.T])  # the whole head turns: rigid
+    d.set_handles(idx)
+    X = d.solve(T, iterations=30)
+    assert np.abs(X - V @ R.T).max() < 1e-3 * diagonal(V)
+    # now a non-rigid move: the top turns, the bottom stays; eyes move with the head around them
+    T = np.concatenate([V[top] @ R.T, V[bottom]])
+    X = d.solve(T, iterations=30)
+    for eye in (slice(n_head, n_head + (len(V) - n_head) // 2), slice(n_head + (len(V) - n_head) // 2, len(V))):
+        E0, E1 = V[eye], X[eye]
+        centre = E0.mean(0)
+        near = np.flatnonzero(np.linalg.norm(Vh - centre, axis=1) < 0.5)
+        head_motion = (X[near] - V[near]).mean(0)
+        eye_motion = (E1 - E0).mean(0)
+        assert np.linalg.norm(eye_motion) > 0.05
+        assert np.linalg.norm(eye_motion - head_motion) < 0.25 * np.linalg.norm(head_motion)
+        # the eye stays an eye: its radius is kept within 10%
+        r0 = np.linalg.norm(E0 - E0.mean(0), axis=1).mean()
+        r1 = np.linalg.norm(E1 - E1.mean(0), axis=1).mean()
+        assert abs(r1 / r0 - 1) < 0.1
+
+
+def test_parts_without_handles_stay_at_rest():
+    a = shapes.sphere((0, 0, 0), 1.0, 12, 24)
+    b = shapes.sphere((5, 0, 0), 1.0, 12, 24)
+    V, F = shapes.concat(a, b)
+    d = larap.Deformer(V, F, cells=2000)
+    assert d.num_components == 2
+    idx = np.flatnonzero(V[:len(a[0]), 2] > 0.8)
+    d.set_handles(idx)
+    X = d.solve(V[idx] + [0, 0, 0.5], iterations=10)
+    assert np.abs(X[len(a[0]):] - V[len(a[0]):]).max() < 1e-9
+    assert X[: len(a[0]), 2].mean() > 0.2
+
+
+def test_no_handles_gives_rest_pose(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1000)
+    d.set_handles(np.zeros(0, np.int64))
+    X = d.solve(np.zeros((0, 3)))
+    assert np.array_equal(X, V)
+
+
+def test_out_buffer_float32(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1000)
+    idx = spread_handles(V, 10)
+    d.set_handles(idx)
+    out = np.full((len(V), 3), np.nan, np.float32)
+    r = d.solve(V[idx] + 0.1, out=out)
+    assert r is out and np.isfinite(out).all()
+    X = d.solve(V[idx] + 0.1, iterations=0)
+    assert np.abs(out - X).max() < 1e-5
+
+
+def test_switch_weights_keeps_pose(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1500)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    Xt = d.solve(T, iterations=30)
+    d.weights = "bspline"
+    Xb = d.solve(T, iterations=0)  # same lattice pose, other weights
+    assert np.abs(Xt - Xb).max() < 0.02 * diagonal(V)
+    assert d.weights == "bspline"
+
+
+def test_deterministic(tube):
+    V, F = tube
+    idx, T = bend_setup(V)
+    out = []
+    for _ in range(2):
+        d = larap.Deformer(V, F, cells=1500)
+        d.set_handles(idx)
+        out.append(d.solve(T, iterations=8))
+    assert np.array_equal(out[0], out[1])
+
+
+def test_lattice_accessors(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1500)
+    rest, edges = d.lattice_rest(), d.lattice_edges()
+    assert rest.shape == (d.num_nodes, 3) and edges.shape[1] == 2
+    assert edges.min() >= 0 and edges.max() < d.num_nodes
+    lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    assert np.allclose(lengths, d.cell_size)
+    assert np.array_equal(d.lattice_deformed(), rest)
+    # the lattice covers the mesh
+    assert (rest.min(0) <= V.min(0)).all() and (rest.max(0) >= V.max(0)).all()

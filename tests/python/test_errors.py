@@ -1,0 +1,142 @@
+# Run: PYTHONPATH=python /usr/bin/python3 -m pytest tests/python/test_errors.py
+"""Every bad input to the Python API gets a clear exception of a fitting type (docs/robustness.md
+lists the same table). Nothing here may crash the interpreter."""
+import numpy as np
+import pytest
+
+import larap
+from larap import shapes
+
+V0, F0 = shapes.sphere((0, 0, 0), 1.0, 8, 16)
+F0 = np.array([f + [f[-1]] if len(f) == 3 else f for f in F0])  # (m, 4), triangles padded
+
+
+def make(**kw):
+    args = dict(vertices=V0, faces=F0, cells=300)
+    args.update(kw)
+    V, F = args.pop("vertices"), args.pop("faces")
+    return larap.Deformer(V, F, **args)
+
+
+def bound(k=5):
+    d = make()
+    d.set_handles(np.arange(k))
+    return d
+
+
+CONSTRUCTION = [
+    # (description, kwargs, exception, words the message must contain)
+    ("empty mesh", dict(vertices=np.zeros((0, 3)), faces=None), ValueError, "empty"),
+    ("vertices (n, 2)", dict(vertices=np.zeros((5, 2))), ValueError, "shape"),
+    ("vertices 1-D", dict(vertices=np.zeros(9)), ValueError, "shape"),
+    ("vertices of strings", dict(vertices=np.array([["a", "b", "c"]])), TypeError, "dtype"),
+    ("vertices complex", dict(vertices=V0 + 0j), TypeError, "real"),
+    ("NaN coordinate", dict(vertices=np.where(np.arange(len(V0))[:, None] == 7, np.nan, V0)), ValueError, "vertices[7]"),
+    ("infinite coordinate", dict(vertices=np.where(np.arange(len(V0))[:, None] == 3, np.inf, V0)), ValueError, "vertices[3]"),
+    ("face index out of range", dict(faces=np.array([[0, 1, len(V0)]])), ValueError, "out of range"),
+    ("negative face index", dict(faces=np.array([[0, -1, 2]])), ValueError, "-1"),
+    ("float faces", dict(faces=np.array([[0.0, 1.0, 2.0]])), TypeError, "integer"),
+    ("all vertices coincide", dict(vertices=np.ones((4, 3)), faces=[[0, 1, 2]]), ValueError, "cell_size"),
+    ("single point", dict(vertices=np.zeros((1, 3)), faces=None), ValueError, "cell_size"),
+    ("cells zero", dict(cells=0), ValueError, "cells"),
+    ("cells negative", dict(cells=-5), ValueError, "cells"),
+    ("cells float", dict(cells=10.5), TypeError, "cells"),
+    ("cells absurd", dict(cells=10**13), MemoryError, "cells"),
+    ("cell_size zero", dict(cells=None, cell_size=0.0), ValueError, "cell_size"),
+    ("cell_size negative", dict(cells=None, cell_size=-1.0), ValueError, "cell_size"),
+    ("cell_size NaN", dict(cells=None, cell_size=float("nan")), ValueError, "cell_size"),
+    ("cell_size absurdly small", dict(cells=None, cell_size=1e-7), MemoryError, "MiB"),
+    ("cells and cell_size", dict(cell_size=0.1), ValueError, "not both"),
+    ("gamma zero", dict(gamma=0.0), ValueError, "gamma"),
+    ("gamma NaN", dict(gamma=float("nan")), ValueError, "gamma"),
+    ("unknown weights", dict(weights="cubic"), ValueError, "weights"),
+    ("unknown device", dict(device="tpu"), ValueError, "device"),
+    ("memory limit", dict(cells=None, cell_size=0.01, max_bytes=1000), MemoryError, "MiB"),
+]
+
+
+@pytest.mark.parametrize("what,kw,exc,words", CONSTRUCTION, ids=[c[0] for c in CONSTRUCTION])
+def test_construction_errors(what, kw, exc, words):
+    with pytest.raises(exc) as info:
+        make(**kw)
+    assert words in str(info.value), str(info.value)
+
+
+def test_cuda_without_gpu_is_a_clear_error():
+    if "cuda" in larap.available_devices():
+        pytest.skip("a GPU is present")
+    with pytest.raises(RuntimeError, match="cuda"):
+        make(device="cuda")
+    assert make(device="auto").device == "cpu"
+
+
+def test_non_contiguous_and_read_only_inputs_are_read_correctly():
+    ref = make().lattice_rest()
+    Vf = np.asfortranarray(V0)
+    Vr = V0.copy()
+    Vr.setflags(write=False)
+    Vs = np.concatenate([V0, V0], axis=1)[:, :3]  # strided view
+    Vi = V0.astype(np.float32)
+    for V in (Vf, Vr, Vs):
+        np.testing.assert_array_equal(make(vertices=V).lattice_rest(), ref)
+    assert make(vertices=Vi).num_nodes > 0
+    Fr = F0.copy()
+    Fr.setflags(write=False)
+    assert make(faces=Fr[:, ::1]).num_nodes == make().num_nodes
+    d = make()
+    idx = np.arange(10)[::2]  # non-contiguous handle array
+    d.set_handles(idx)
+    T = np.asfortranarray(V0[idx])
+    assert np.isfinite(d.solve(T)).all()
+
+
+HANDLES = [
+    ("index out of range", [0, len(V0)], ValueError, "out of range"),
+    ("negative index", [0, -1], ValueError, "out of range"),
+    ("repeated index", [3, 4, 3], ValueError, "twice"),
+    ("float indices", np.array([0.0, 1.0]), TypeError, "integers"),
+    ("2-D indices", np.array([[0, 1]]), ValueError, "1-D"),
+    ("bool mask", np.ones(len(V0), bool), TypeError, "integers"),
+]
+
+
+@pytest.mark.parametrize("what,idx,exc,words", HANDLES, ids=[h[0] for h in HANDLES])
+def test_handle_errors(what, idx, exc, words):
+    d = make()
+    with pytest.raises(exc) as info:
+        d.set_handles(idx)
+    assert words in str(info.value)
+
+
+def test_solve_errors():
+    d = make()
+    with pytest.raises(RuntimeError, match="set_handles"):
+        d.solve(np.zeros((0, 3)))
+    d = bound(5)
+    with pytest.raises(ValueError, match=r"\(5, 3\)"):
+        d.solve(np.zeros((4, 3)))
+    with pytest.raises(ValueError, match="targets\\[2\\]"):
+        T = V0[:5].copy()
+        T[2, 1] = np.nan
+        d.solve(T)
+    with pytest.raises(ValueError, match="iterations"):
+        d.solve(V0[:5], iterations=-1)
+    with pytest.raises(TypeError, match="out"):
+        d.solve(V0[:5], out=np.zeros((len(V0), 3), np.int32))
+    with pytest.raises(ValueError, match="shape"):
+        d.solve(V0[:5], out=np.zeros((len(V0) + 1, 3)))
+    with pytest.raises(ValueError, match="contiguous"):
+        d.solve(V0[:5], out=np.zeros((3, len(V0))).T)
+    # after all these errors the deformer still works
+    X = d.solve(V0[:5] + 0.1)
+    assert np.isfinite(X).all()
+
+
+def test_weights_and_gamma_setters_validate():
+    d = bound()
+    with pytest.raises(ValueError):
+        d.weights = "linear"
+    with pytest.raises(ValueError):
+        d.gamma = -1
+    d.gamma = 0.5
+    assert d.gamma == 0.5

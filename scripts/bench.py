@@ -40,8 +40,8 @@ def run(faces, nodes, repeat, device="cpu"):
     s = d.stats
     # Handles: two opposite sectors of the torus; one turns about z and lifts.
     ang = np.arctan2(V[:, 1], V[:, 0])
-    a = np.flatnonzero(np.abs(ang) < 0.25)
-    b = np.flatnonzero(np.abs(np.abs(ang) - np.pi) < 0.25)
+    a = np.flatnonzero(np.abs(ang) < 0.05)
+    b = np.flatnonzero(np.abs(np.abs(ang) - np.pi) < 0.05)
     idx = np.concatenate([a, b])
     d.set_handles(idx)
     ms_factor = d.stats["ms_factorize"]
@@ -54,7 +54,7 @@ def run(faces, nodes, repeat, device="cpu"):
         if r:
             rows.append(dict(d.stats))
     med = {k: statistics.median(x[k] for x in rows) for k in
-           ("ms_rotations", "ms_rhs", "ms_solve", "ms_transfer", "ms_total")}
+           ("ms_rotations", "ms_rhs", "ms_solve", "ms_transfer", "ms_total", "ms_energy", "ms_start")}
     d.weights = "bspline"
     t0 = time.perf_counter()
     d.solve(T, 5, out=out)
@@ -70,17 +70,17 @@ def main():
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--record", help="append the table to this markdown file")
     args = ap.parse_args()
-    configs = [(17_000, 5_000), (170_000, 10_000), (1_000_000, 10_000), (2_000_000, 40_000)]
+    configs = [(17_000, 5_000), (170_000, 10_000), (1_700_000, 20_000), (2_000_000, 10_000), (2_000_000, 40_000)]
     if args.quick:
         configs = [(17_000, 5_000), (170_000, 10_000)]
     head = ("| faces | vertices | nodes | lattice ms | binding ms | factorize ms | rotations ms (5 it) | "
-            "rhs ms | solve ms | transfer ms (tri) | pose update ms | transfer ms (B-spline) |")
-    lines = [head, "|" + "---|" * 12]
+            "rhs ms | solve ms | energy ms | start ms | transfer ms (tri) | pose update ms | transfer ms (B-spline) |")
+    lines = [head, "|" + "---|" * 14]
     for faces, nodes in configs:
         r = run(faces, nodes, args.repeat)
         line = (f"| {r['faces']:,} | {r['vertices']:,} | {r['nodes']:,} | {r['lattice']:.0f} | {r['binding']:.0f} | "
                 f"{r['factorize']:.0f} | {r['ms_rotations']:.1f} | {r['ms_rhs']:.1f} | {r['ms_solve']:.1f} | "
-                f"{r['ms_transfer']:.1f} | {r['ms_total']:.1f} | {r['bspline_transfer']:.1f} |")
+                f"{r['ms_energy']:.1f} | {r['ms_start']:.1f} | {r['ms_transfer']:.1f} | {r['ms_total']:.1f} | {r['bspline_transfer']:.1f} |")
         lines.append(line)
         print(line, flush=True)
     cpu = platform.processor() or platform.machine()

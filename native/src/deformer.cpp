@@ -204,6 +204,7 @@ void Deformer::solve_impl(const double* targets, int iterations, T* out) {
     if (!(e_rest < e_prev)) backend_->set_pose(prev);
   }
 
+  stats_.ms_start = ms_since(t0);
   backend_->iterate(tgt, iterations, stats_);
   stats_.iterations = iterations;
   backend_->transfer(binding(), out, stats_);

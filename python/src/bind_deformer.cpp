@@ -90,6 +90,8 @@ py::dict stats(const larap::Deformer& d) {
   r["ms_solve"] = s.ms_solve;
   r["ms_transfer"] = s.ms_transfer;
   r["ms_total"] = s.ms_total;
+  r["ms_energy"] = s.ms_energy;
+  r["ms_start"] = s.ms_start;
   r["ms_factorize"] = s.ms_factorize;
   r["ms_lattice"] = s.ms_lattice;
   r["ms_binding"] = s.ms_binding;

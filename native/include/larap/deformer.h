@@ -33,13 +33,15 @@ struct SolveStats {
   int iterations = 0;
   bool rigid_carry = false;    // the previous pose was carried by the handles' best rigid motion
   double ms_rotations = 0, ms_rhs = 0, ms_solve = 0, ms_transfer = 0, ms_total = 0;
+  double ms_energy = 0;        // evaluating the energy after each iteration
+  double ms_start = 0;         // choosing the start (rigid carry, rest candidate)
   double ms_factorize = 0;     // last set_handles
   double ms_lattice = 0, ms_binding = 0;  // construction
   void clear_solve() {
     energy.clear();
     iterations = 0;
     rigid_carry = false;
-    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = 0;
+    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = ms_energy = ms_start = 0;
   }
 };
 

@@ -1,0 +1,563 @@
+// Kernels of the CUDA backend (see kernels.h and docs/cuda.md).
+#include "kernels.h"
+#include "rotation.cuh"
+
+namespace larap {
+namespace cuda {
+namespace {
+
+constexpr int kBlock = 256;
+constexpr unsigned kFull = 0xffffffffu;
+
+__device__ __forceinline__ float4 f4(float x, float y, float z) { return make_float4(x, y, z, 0.f); }
+__device__ __forceinline__ float4 operator+(float4 a, float4 b) { return f4(a.x + b.x, a.y + b.y, a.z + b.z); }
+__device__ __forceinline__ float4 operator-(float4 a, float4 b) { return f4(a.x - b.x, a.y - b.y, a.z - b.z); }
+__device__ __forceinline__ float4 operator*(float s, float4 a) { return f4(s * a.x, s * a.y, s * a.z); }
+// Per-column products (3 independent systems).
+__device__ __forceinline__ float4 cmul(float4 a, float4 b) { return f4(a.x * b.x, a.y * b.y, a.z * b.z); }
+__device__ __forceinline__ float dot3(float4 a, float4 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+int blocks_for(int64_t n) { return int((n + kBlock - 1) / kBlock); }
+
+// Sums NV doubles over the block and adds them to dst[0..NV) (one atomic per value and block).
+template <int NV>
+__device__ void block_add(double (&v)[NV], double* dst) {
+  __shared__ double sh[NV][kBlock / 32];
+  const int lane = threadIdx.x & 31, warp = threadIdx.x >> 5;
+#pragma unroll
+  for (int k = 0; k < NV; ++k)
+    for (int o = 16; o > 0; o >>= 1) v[k] += __shfl_down_sync(kFull, v[k], o);
+  if (lane == 0)
+#pragma unroll
+    for (int k = 0; k < NV; ++k) sh[k][warp] = v[k];
+  __syncthreads();
+  if (warp == 0) {
+#pragma unroll
+    for (int k = 0; k < NV; ++k) {
+      double t = lane < kBlock / 32 ? sh[k][lane] : 0.0;
+      for (int o = 16; o > 0; o >>= 1) t += __shfl_down_sync(kFull, t, o);
+      if (lane == 0 && t != 0.0) atomicAdd(dst + k, t);
+    }
+  }
+}
+
+// (A v)_i with v_j = get(j): diagonal + 6 unrolled lattice slots (all loads in flight at once)
+// + the short remainder list.
+template <class F>
+__device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
+  int js[6];
+  float as[6];
+#pragma unroll
+  for (int d = 0; d < 6; ++d) {
+    js[d] = __ldg(s.nbr + d * s.n + i);
+    as[d] = __ldg(s.a_nb + d * s.n + i);
+  }
+  float4 acc = __ldg(s.a_diag + i) * get(i);
+#pragma unroll
+  for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d]);
+  const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
+  for (int q = q0; q < q1; ++q) acc = acc + __ldg(s.rem_val + q) * get(__ldg(s.rem_col + q));
+  return acc;
+}
+
+// ---------------------------------------------------------------- rotations (+ energy)
+__global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
+  const int t = blockIdx.x * blockDim.x + threadIdx.x;
+  int e_slot = slot;
+  if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
+  double e = 0.0;
+  if (t < s.n) {
+    const int i = t;
+    const float4 pi = s.x[i], ci = s.rest[i];
+    float S[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    float Ro[9];
+    const bool want_e = e_slot >= 0;
+    if (want_e)
+#pragma unroll
+      for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.n + i];
+    float ei = 0.f;
+    int js[6];
+#pragma unroll
+    for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
+#pragma unroll
+    for (int d = 0; d < 6; ++d) {
+      const int j = js[d];  // missing neighbour: i itself, dp = dc = 0
+      const float4 dp = pi - s.x[j], dc = ci - s.rest[j];
+      S[0] += dp.x * dc.x; S[1] += dp.x * dc.y; S[2] += dp.x * dc.z;
+      S[3] += dp.y * dc.x; S[4] += dp.y * dc.y; S[5] += dp.y * dc.z;
+      S[6] += dp.z * dc.x; S[7] += dp.z * dc.y; S[8] += dp.z * dc.z;
+      if (want_e) {
+        const float rx = dp.x - (Ro[0] * dc.x + Ro[1] * dc.y + Ro[2] * dc.z);
+        const float ry = dp.y - (Ro[3] * dc.x + Ro[4] * dc.y + Ro[5] * dc.z);
+        const float rz = dp.z - (Ro[6] * dc.x + Ro[7] * dc.y + Ro[8] * dc.z);
+        ei += rx * rx + ry * ry + rz * rz;
+      }
+    }
+    if (want_e) {
+      e = double(s.g) * double(ei);
+      if (s.anchored[i]) {
+        const float4 d = pi - ci;
+        e += double(s.a) * double(dot3(d, d));
+      }
+    }
+    if (write_rot) {
+      float R[9];
+      cuda_math::best_rotation_f(S, R);
+#pragma unroll
+      for (int k = 0; k < 9; ++k) s.rot[k * s.n + i] = R[k];
+    }
+  }
+  if (e_slot >= 0 && t < s.m) {
+    float4 acc = f4(0, 0, 0);
+    for (int k = 0; k < s.stencil; ++k) {
+      const int id = s.b_ids[t * s.stencil + k];
+      acc = acc + s.b_w[t * s.stencil + k] * s.x[id];
+    }
+    const float4 d = acc - s.targets[t];
+    e += double(dot3(d, d));
+  }
+  if (e_slot >= 0) {
+    double v[1] = {e};
+    block_add<1>(v, s.energy + e_slot);
+  }
+}
+
+// ---------------------------------------------------------------- right-hand side
+__device__ __forceinline__ float4 rhs_at(const System& s, int i) {
+  const float4 ci = s.rest[i];
+  float Ri[9];
+#pragma unroll
+  for (int k = 0; k < 9; ++k) Ri[k] = s.rot[k * s.n + i];
+  float bx = 0.f, by = 0.f, bz = 0.f;
+  int js[6];
+#pragma unroll
+  for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
+#pragma unroll
+  for (int d = 0; d < 6; ++d) {
+    const int j = js[d];  // missing neighbour: i itself, dc = 0
+    const float4 dc = ci - s.rest[j];
+    float M[9];
+#pragma unroll
+    for (int q = 0; q < 9; ++q) M[q] = Ri[q] + s.rot[q * s.n + j];
+    bx += M[0] * dc.x + M[1] * dc.y + M[2] * dc.z;
+    by += M[3] * dc.x + M[4] * dc.y + M[5] * dc.z;
+    bz += M[6] * dc.x + M[7] * dc.y + M[8] * dc.z;
+  }
+  float4 b = f4(s.g * bx, s.g * by, s.g * bz);
+  for (int k = s.bt_off[i]; k < s.bt_off[i + 1]; ++k) b = b + s.bt_w[k] * s.targets[s.bt_handle[k]];
+  if (s.anchored[i]) b = b + s.a * ci;
+  return b;
+}
+
+__global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (blockIdx.x == 0) {  // fresh solver scalars for this flip-flop
+    for (int k = threadIdx.x; k < (s.inner + 1) * 6; k += blockDim.x) s.dots[k] = 0.0;
+    for (int k = threadIdx.x; k < s.inner + 1; k += blockDim.x) s.counters[k] = 0u;
+    if (threadIdx.x == 0) *s.iter += 1;
+  }
+  if (s.nc > 0) {  // two-level CG: zero the restriction slots of this flip-flop
+    const int64_t tot = int64_t(s.inner) * s.nc;
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot; k += int64_t(gridDim.x) * blockDim.x)
+      s.rc[k] = f4(0, 0, 0);
+  }
+  if (i >= s.n) return;
+  float4 b = rhs_at(s, i);
+  if (residual) {
+    const float4* x = s.x;
+    b = b - spmv_row(s, i, [&](int j) { return x[j]; });
+  }
+  s.r[0][i] = b;
+}
+
+// ---------------------------------------------------------------- PCG (Chronopoulos-Gear)
+// Kernel k (k = 0 is the set-up pass) applies iteration k-1 with coef[k] = (alpha, beta, first),
+// then computes u = M r and w = A u for the new residual (neighbours' new values are recomputed
+// from their old buffers, hence the ping-pong), and the dots gamma = (r, u), delta = (w, u). The
+// last block to finish turns the dots into coef[k+1].
+__global__ void __launch_bounds__(kBlock) cg_kernel(System s, int k) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  const int in = k & 1, out = in ^ 1;
+  const bool pre = k == 0;
+  float4 al = f4(0, 0, 0), be = f4(0, 0, 0);
+  bool first = false;
+  if (!pre) {
+    const float* c = s.coef + 8 * k;
+    al = f4(c[0], c[1], c[2]);
+    be = f4(c[3], c[4], c[5]);
+    first = c[6] != 0.f;
+  }
+  double v[6] = {0, 0, 0, 0, 0, 0};
+  if (i < s.n) {
+    const float4* rin = s.r[in];
+    const float4* win = s.w[in];
+    const float4* sin = s.s[in];
+    float4 rn, sn;
+    if (pre) {
+      rn = rin[i];
+      sn = f4(0, 0, 0);
+    } else {
+      const float mi = s.minv[i];
+      const float4 u = mi * rin[i];
+      const float4 wi = win[i];
+      sn = first ? wi : wi + cmul(be, sin[i]);
+      const float4 pn = first ? u : u + cmul(be, s.p[i]);
+      s.p[i] = pn;
+      s.x[i] = s.x[i] + cmul(al, pn);
+      rn = rin[i] - cmul(al, sn);
+    }
+    const float4 un = s.minv[i] * rn;
+    float4 wn = f4(0, 0, 0);
+    for (int q = s.a_off[i]; q < s.a_off[i + 1]; ++q) {
+      const int j = s.a_col[q];
+      float4 rj = rin[j];
+      if (!pre) {
+        const float4 sj = first ? win[j] : win[j] + cmul(be, sin[j]);
+        rj = rj - cmul(al, sj);
+      }
+      wn = wn + (s.a_val[q] * s.minv[j]) * rj;
+    }
+    s.r[out][i] = rn;
+    s.s[out][i] = sn;
+    s.w[out][i] = wn;
+    v[0] = rn.x * un.x; v[1] = rn.y * un.y; v[2] = rn.z * un.z;
+    v[3] = wn.x * un.x; v[4] = wn.y * un.y; v[5] = wn.z * un.z;
+  }
+  block_add<6>(v, s.dots + 6 * k);
+  // Last block: coefficients for the next kernel.
+  __shared__ bool last;
+  __threadfence();
+  __syncthreads();
+  if (threadIdx.x == 0) last = atomicAdd(s.counters + k, 1u) == gridDim.x - 1;
+  __syncthreads();
+  if (!last || threadIdx.x != 0) return;
+  __threadfence();
+  volatile double* d = s.dots;
+  float* cn = s.coef + 8 * (k + 1);
+  for (int c = 0; c < 3; ++c) {
+    const double gam = d[6 * k + c], del = d[6 * k + 3 + c];
+    double alpha = 0.0, beta = 0.0;
+    if (k == 0) {
+      if (gam > 0.0 && del > 0.0) alpha = gam / del;
+    } else {
+      const double gprev = d[6 * (k - 1) + c];
+      const double aprev = s.coef[8 * k + c];
+      const double g0 = d[c];
+      // Stop (alpha = 0 from here on) once converged as far as float allows, or on breakdown.
+      if (aprev != 0.0 && gprev > 0.0 && gam > 1e-12 * g0 && gam > 0.0) {
+        beta = gam / gprev;
+        const double den = del - beta * gam / aprev;
+        if (den > 0.0 && isfinite(den)) alpha = gam / den;
+        else beta = 0.0;
+      }
+    }
+    if (!(alpha > 0.0) || !isfinite(alpha)) alpha = beta = 0.0;
+    cn[c] = float(alpha);
+    cn[3 + c] = float(beta);
+  }
+  cn[6] = k == 0 ? 1.f : 0.f;
+  s.counters[k] = 0u;
+}
+
+
+// ---------------------------------------------------------------- two-level PCG
+// Per-column CG scalars from the dots of iteration k: dots[6k + c] = (r, z), [6k + 3 + c] = (p, Ap).
+__device__ __forceinline__ float4 mg_alpha(const System& s, int k) {
+  float a[3];
+#pragma unroll
+  for (int c = 0; c < 3; ++c) {
+    const double rz = s.dots[6 * k + c], pq = s.dots[6 * k + 3 + c], rz0 = s.dots[c];
+    double al = 0.0;
+    if (pq > 0.0 && rz > 0.0 && rz > 1e-13 * rz0) al = rz / pq;
+    if (!isfinite(al)) al = 0.0;
+    a[c] = float(al);
+  }
+  return f4(a[0], a[1], a[2]);
+}
+__device__ __forceinline__ float4 mg_beta(const System& s, int k) {
+  float b[3];
+#pragma unroll
+  for (int c = 0; c < 3; ++c) {
+    const double rz = s.dots[6 * k + c], rzp = s.dots[6 * (k - 1) + c];
+    double be = rzp > 0.0 ? rz / rzp : 0.0;
+    if (!isfinite(be)) be = 0.0;
+    b[c] = float(be);
+  }
+  return f4(b[0], b[1], b[2]);
+}
+
+// A_k: x += alpha_{k-1} p_{k-1}, r_k = r_{k-1} - alpha_{k-1} q (k > 0); then the pre-smoothed
+// residual r1 = r_k - A (omega D^-1 r_k) restricted into rc[k] (atomics). final: update only.
+__global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool final) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= s.n) return;
+  const float4 al = k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0);
+  const float4* rin = s.r[(k + 1) & 1];  // r_{k-1} (k > 0)
+  float4 rn;
+  if (k > 0) {
+    rn = rin[i] - cmul(al, s.q[i]);
+    s.x[i] = s.x[i] + cmul(al, s.pb[(k - 1) & 1][i]);
+    if (final) return;
+    s.r[k & 1][i] = rn;
+  } else {
+    rn = s.r[0][i];
+  }
+  const float4* rk = k > 0 ? rin : s.r[0];
+  const float4* qv = s.q;
+  const float* minv = s.minv;
+  const float4 ar = k > 0 ? spmv_row(s, i, [&](int j) { return __ldg(minv + j) * (rk[j] - cmul(al, qv[j])); })
+                          : spmv_row(s, i, [&](int j) { return __ldg(minv + j) * rk[j]; });
+  const float4 r1 = rn - s.omega * ar;
+  float4* dst = s.rc + int64_t(k) * s.nc + s.agg[i];
+  atomicAdd(&dst->x, r1.x);
+  atomicAdd(&dst->y, r1.y);
+  atomicAdd(&dst->z, r1.z);
+}
+
+// B_k: zc = Ac^-1 rc[k] (dense, one warp per row).
+__global__ void __launch_bounds__(kBlock) mg_coarse_kernel(System s, int k) {
+  const int row = (blockIdx.x * blockDim.x + threadIdx.x) >> 5, lane = threadIdx.x & 31;
+  if (row >= s.nc) return;
+  const float* a = s.ainv + int64_t(row) * s.nc;
+  const float4* rc = s.rc + int64_t(k) * s.nc;
+  float ax = 0.f, ay = 0.f, az = 0.f;
+  for (int j = lane; j < s.nc; j += 32) {
+    const float w = a[j];
+    const float4 v = rc[j];
+    ax += w * v.x; ay += w * v.y; az += w * v.z;
+  }
+  for (int o = 16; o > 0; o >>= 1) {
+    ax += __shfl_down_sync(kFull, ax, o);
+    ay += __shfl_down_sync(kFull, ay, o);
+    az += __shfl_down_sync(kFull, az, o);
+  }
+  if (lane == 0) s.zc[row] = f4(ax, ay, az);
+}
+
+// C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); dots (r, z).
+__global__ void __launch_bounds__(kBlock) mg_c_kernel(System s, int k) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  double v[3] = {0, 0, 0};
+  if (i < s.n) {
+    const float4* r = s.r[k & 1];
+    const float4 ri = r[i];
+    const float om = s.omega;
+    const float* minv = s.minv;
+    const int* agg = s.agg;
+    const float4* zc = s.zc;
+    const float4 az = spmv_row(s, i, [&](int j) { return (om * __ldg(minv + j)) * r[j] + zc[__ldg(agg + j)]; });
+    const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
+    const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
+    s.z[i] = zi;
+    v[0] = ri.x * zi.x; v[1] = ri.y * zi.y; v[2] = ri.z * zi.z;
+  }
+  block_add<3>(v, s.dots + 6 * k);
+}
+
+// D_k: p_k = z + beta p_{k-1}; q = A p_k; dots (p, q).
+__global__ void __launch_bounds__(kBlock) mg_d_kernel(System s, int k) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  double v[3] = {0, 0, 0};
+  if (i < s.n) {
+    const float4 be = k > 0 ? mg_beta(s, k) : f4(0, 0, 0);
+    const float4* pold = s.pb[(k + 1) & 1];
+    const float4 pi = k > 0 ? s.z[i] + cmul(be, pold[i]) : s.z[i];
+    const float4* z = s.z;
+    const float4 aq = k > 0 ? spmv_row(s, i, [&](int j) { return z[j] + cmul(be, pold[j]); })
+                            : spmv_row(s, i, [&](int j) { return z[j]; });
+    s.pb[k & 1][i] = pi;
+    s.q[i] = aq;
+    v[0] = pi.x * aq.x; v[1] = pi.y * aq.y; v[2] = pi.z * aq.z;
+  }
+  block_add<3>(v, s.dots + 6 * k + 3);
+}
+
+// ---------------------------------------------------------------- Chebyshev / Jacobi
+__global__ void __launch_bounds__(kBlock) cheby_kernel(System s, int k, float c1, float c2) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= s.n) return;
+  const float4* xin = (k & 1) ? s.x_tmp : s.x;
+  float4* xout = (k & 1) ? s.x : s.x_tmp;
+  float4 ax = f4(0, 0, 0);
+  for (int q = s.a_off[i]; q < s.a_off[i + 1]; ++q) ax = ax + s.a_val[q] * xin[s.a_col[q]];
+  const float4 res = s.r[0][i] - ax;
+  const float4 d = (k == 0 ? f4(0, 0, 0) : c1 * s.p[i]) + (c2 * s.minv[i]) * res;
+  s.p[i] = d;
+  xout[i] = xin[i] + d;
+}
+
+// ---------------------------------------------------------------- small helpers
+struct Mat3f {
+  float m[9];
+};
+
+__global__ void rigid_kernel(System s, Mat3f R, float4 t) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= s.n || s.anchored[i]) return;
+  const float4 p = s.x[i];
+  s.x[i] = f4(R.m[0] * p.x + R.m[1] * p.y + R.m[2] * p.z + t.x,
+              R.m[3] * p.x + R.m[4] * p.y + R.m[5] * p.z + t.y,
+              R.m[6] * p.x + R.m[7] * p.y + R.m[8] * p.z + t.z);
+}
+
+__global__ void handle_positions_kernel(System s, float4* out) {
+  const int j = blockIdx.x * blockDim.x + threadIdx.x;
+  if (j >= s.m) return;
+  float4 acc = f4(0, 0, 0);
+  for (int k = 0; k < s.stencil; ++k) acc = acc + s.b_w[j * s.stencil + k] * s.x[s.b_ids[j * s.stencil + k]];
+  out[j] = acc;
+}
+
+__global__ void displacement_kernel(System s, float4* disp) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i < s.n) disp[i] = s.x[i] - s.rest[i];
+}
+
+// ---------------------------------------------------------------- transfer
+template <typename T>
+__global__ void __launch_bounds__(kBlock) trilinear_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
+                                                           const int4* __restrict__ cell_nodes,
+                                                           const float4* __restrict__ disp,
+                                                           const T* __restrict__ V, T* __restrict__ out) {
+  const int64_t v = v0 + int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (v >= v1) return;
+  const float4 pk = __ldg(packed + v);
+  const int c = __float_as_int(pk.x);
+  const float fx = pk.y, fy = pk.z, fz = pk.w;
+  const int4 n0 = __ldg(cell_nodes + 2 * c), n1 = __ldg(cell_nodes + 2 * c + 1);
+  const int ids[8] = {n0.x, n0.y, n0.z, n0.w, n1.x, n1.y, n1.z, n1.w};
+  const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
+  float ax = 0.f, ay = 0.f, az = 0.f;
+#pragma unroll
+  for (int k = 0; k < 8; ++k) {
+    const float w = wx[k & 1] * wy[(k >> 1) & 1] * wz[k >> 2];
+    const float4 d = __ldg(disp + ids[k]);
+    ax += w * d.x;
+    ay += w * d.y;
+    az += w * d.z;
+  }
+  out[3 * v] = V[3 * v] + T(ax);
+  out[3 * v + 1] = V[3 * v + 1] + T(ay);
+  out[3 * v + 2] = V[3 * v + 2] + T(az);
+}
+
+template <typename T>
+__global__ void __launch_bounds__(kBlock) bspline_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
+                                                         const int* __restrict__ node27,
+                                                         const float4* __restrict__ disp,
+                                                         const T* __restrict__ V, T* __restrict__ out) {
+  const int64_t v = v0 + int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (v >= v1) return;
+  const float4 pk = __ldg(packed + v);
+  const int64_t b = __float_as_int(pk.x);
+  const float fr[3] = {pk.y, pk.z, pk.w};
+  float w[3][3];
+#pragma unroll
+  for (int a = 0; a < 3; ++a) {
+    const float t = fr[a];
+    w[a][0] = 0.5f * (0.5f - t) * (0.5f - t);
+    w[a][1] = 0.75f - t * t;
+    w[a][2] = 0.5f * (0.5f + t) * (0.5f + t);
+  }
+  const int* ids = node27 + 27 * b;
+  float ax = 0.f, ay = 0.f, az = 0.f;
+#pragma unroll
+  for (int z = 0; z < 3; ++z)
+#pragma unroll
+    for (int y = 0; y < 3; ++y) {
+      const float wyz = w[1][y] * w[2][z];
+#pragma unroll
+      for (int x = 0; x < 3; ++x) {
+        const float ww = w[0][x] * wyz;
+        const float4 d = __ldg(disp + __ldg(ids + 9 * z + 3 * y + x));
+        ax += ww * d.x;
+        ay += ww * d.y;
+        az += ww * d.z;
+      }
+    }
+  out[3 * v] = V[3 * v] + T(ax);
+  out[3 * v + 1] = V[3 * v + 1] + T(ay);
+  out[3 * v + 2] = V[3 * v + 2] + T(az);
+}
+
+__global__ void probe_kernel() {}
+
+}  // namespace
+
+void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st) {
+  const int64_t n = s.n > s.m ? s.n : s.m;
+  if (n == 0) return;
+  rotations_kernel<<<blocks_for(n), kBlock, 0, st>>>(s, write_rot, slot);
+}
+
+void launch_rhs(const System& s, bool residual, cudaStream_t st) {
+  rhs_kernel<<<blocks_for(s.n > 0 ? s.n : 1), kBlock, 0, st>>>(s, residual);
+}
+
+void launch_cg(const System& s, int k, cudaStream_t st) {
+  cg_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
+}
+
+void launch_mg_iteration(const System& s, int k, cudaStream_t st) {
+  mg_a_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k, false);
+  mg_coarse_kernel<<<blocks_for(int64_t(s.nc) * 32), kBlock, 0, st>>>(s, k);
+  mg_c_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
+  mg_d_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
+}
+
+void launch_mg_final(const System& s, cudaStream_t st) {
+  mg_a_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, s.inner, true);
+}
+
+void launch_cheby(const System& s, int k, float c1, float c2, cudaStream_t st) {
+  cheby_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k, c1, c2);
+}
+
+void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st) {
+  Mat3f R;
+  for (int k = 0; k < 9; ++k) R.m[k] = R9[k];
+  if (s.n) rigid_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, R, make_float4(tx, ty, tz, 0.f));
+}
+
+void launch_handle_positions(const System& s, float4* out, cudaStream_t st) {
+  if (s.m) handle_positions_kernel<<<blocks_for(s.m), kBlock, 0, st>>>(s, out);
+}
+
+void launch_displacement(const System& s, float4* disp, cudaStream_t st) {
+  if (s.n) displacement_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, disp);
+}
+
+void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
+                               const int* cell_nodes, const float4* disp, const float* V,
+                               float* out, cudaStream_t st) {
+  if (v1 > v0)
+    trilinear_kernel<float><<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+        v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
+}
+void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
+                               const int* cell_nodes, const float4* disp, const double* V,
+                               double* out, cudaStream_t st) {
+  if (v1 > v0)
+    trilinear_kernel<double><<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+        v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
+}
+void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
+                             const int* node27, const float4* disp, const float* V, float* out,
+                             cudaStream_t st) {
+  if (v1 > v0)
+    bspline_kernel<float><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
+}
+void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
+                             const int* node27, const float4* disp, const double* V, double* out,
+                             cudaStream_t st) {
+  if (v1 > v0)
+    bspline_kernel<double><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
+}
+
+cudaError_t probe_kernels() {
+  cudaFuncAttributes attr;
+  return cudaFuncGetAttributes(&attr, probe_kernel);
+}
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,188 @@
+"""CUDA backend: same API and results as the CPU backend (docs/cuda.md).
+
+Every test is parametrised over larap.available_devices(); the CUDA cases are skipped, with the
+reason, where this build or machine has no usable GPU.
+"""
+import numpy as np
+import pytest
+
+import larap
+from larap import shapes
+
+DEVICES = larap.available_devices()
+HAVE_CUDA = "cuda" in DEVICES
+need_cuda = pytest.mark.skipif(not HAVE_CUDA, reason="no usable CUDA device/build: "
+                               "larap.available_devices() == %r" % (DEVICES,))
+
+
+def devices():
+    return [pytest.param(d, marks=need_cuda if d == "cuda" else ()) for d in ("cpu", "cuda")]
+
+
+def tube_model(cells=1500):
+    V, F = shapes.tube(length=4.0, radius=0.5, segments=24, rings=48)
+    V = np.asarray(V, float)
+    left = np.where(V[:, 0] < 0.3)[0]
+    right = np.where(V[:, 0] > 3.7)[0]
+    handles = np.concatenate([left, right])
+    return V, F, handles, len(left)
+
+
+def diag(V):
+    return float(np.linalg.norm(V.max(0) - V.min(0)))
+
+
+def bend_targets(V, handles, nleft, angle=0.6):
+    T = V[handles].copy()
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    pivot = np.array([4.0, 0, 0])
+    T[nleft:] = (T[nleft:] - pivot) @ R.T + pivot + [0.0, 0.6, 0.0]
+    return T
+
+
+@pytest.mark.parametrize("device", devices())
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_rest_targets_give_rest_pose(device, weights):
+    V, F, h, _ = tube_model()
+    d = larap.Deformer(V, F, cells=1500, weights=weights, device=device)
+    d.set_handles(h)
+    X = d.solve(V[h], iterations=5)
+    assert np.abs(X - V).max() < 1e-4 * diag(V)
+
+
+@pytest.mark.parametrize("device", devices())
+def test_rigid_motion_of_all_handles_is_rigid(device):
+    V, F, h, _ = tube_model()
+    a = 0.8
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    t = np.array([0.3, -1.0, 2.0])
+    d = larap.Deformer(V, F, cells=1500, device=device)
+    d.set_handles(h)
+    X = d.solve(V[h] @ R.T + t, iterations=10)
+    assert np.abs(X - (V @ R.T + t)).max() < 1e-4 * diag(V)
+
+
+@need_cuda
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_cuda_agrees_with_cpu_when_converged(weights):
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    out = {}
+    for dev in ("cpu", "cuda"):
+        d = larap.Deformer(V, F, cells=1500, weights=weights, device=dev)
+        d.set_handles(h)
+        out[dev] = d.solve(T, iterations=200)
+        out[dev + "_e"] = d.stats["energy"][-1]
+    err = np.linalg.norm(out["cpu"] - out["cuda"], axis=1).max()
+    assert err < 1e-4 * diag(V), f"max vertex distance {err / diag(V):.3g} of the diagonal"
+    assert abs(out["cpu_e"] - out["cuda_e"]) <= 1e-3 * out["cpu_e"] + 1e-9
+
+
+@pytest.mark.parametrize("device", devices())
+def test_handles_reach_targets_like_cpu(device):
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl, angle=0.3)
+    d = larap.Deformer(V, F, cells=1500, gamma=0.01, device=device)
+    d.set_handles(h)
+    X = d.solve(T, iterations=50)
+    ref = larap.Deformer(V, F, cells=1500, gamma=0.01, device="cpu")
+    ref.set_handles(h)
+    Xr = ref.solve(T, iterations=50)
+    e = np.linalg.norm(X[h] - T, axis=1).mean()
+    er = np.linalg.norm(Xr[h] - T, axis=1).mean()
+    assert e < 0.05 * diag(V)
+    assert e <= er * 1.2 + 1e-4 * diag(V)
+
+
+@pytest.mark.parametrize("device", devices())
+def test_energy_non_increasing(device):
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device=device)
+    d.set_handles(h)
+    d.solve(bend_targets(V, h, nl), iterations=30)
+    E = np.array(d.stats["energy"])
+    assert len(E) == 30 and np.all(np.isfinite(E))
+    assert np.all(np.diff(E) <= 1e-4 * E[0] + 1e-7), E
+    # warm start: a small further move keeps decreasing from a low energy
+    d.solve(bend_targets(V, h, nl, angle=0.65), iterations=10)
+    E2 = np.array(d.stats["energy"])
+    assert np.all(np.diff(E2) <= 1e-4 * E2[0] + 1e-7), E2
+
+
+@pytest.mark.parametrize("device", devices())
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_float32_out(device, weights):
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    d = larap.Deformer(V, F, cells=1500, weights=weights, device=device)
+    d.set_handles(h)
+    X64 = d.solve(T, iterations=5)
+    out = np.full(V.shape, np.nan, np.float32)
+    d.reset()
+    r = d.solve(T, iterations=5, out=out)
+    assert r is out and out.dtype == np.float32 and np.isfinite(out).all()
+    assert np.abs(out - X64).max() < 1e-5 * diag(V)
+
+
+@need_cuda
+def test_errors_are_exceptions_and_process_stays_usable():
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    with pytest.raises(RuntimeError):
+        d.solve(V[h], iterations=3)           # before set_handles
+    d.set_handles(h)
+    with pytest.raises(ValueError):
+        d.solve(V[h][:-1], iterations=3)      # wrong shape
+    with pytest.raises(ValueError):
+        d.set_handles([0, 0])                 # duplicate
+    d.set_handles(h)
+    X = d.solve(bend_targets(V, h, nl), iterations=5)
+    assert np.isfinite(X).all()
+
+
+@pytest.mark.parametrize("device", devices())
+def test_many_solves_and_reset(device):
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device=device)
+    d.set_handles(h)
+    for k in range(5):
+        X = d.solve(bend_targets(V, h, nl, angle=0.1 * k), iterations=4)
+        assert np.isfinite(X).all()
+    X = d.solve(bend_targets(V, h, nl, angle=0.5), iterations=300)  # longer than any before
+    assert np.isfinite(X).all() and len(d.stats["energy"]) == 300
+    d.reset()
+    d.set_handles(h[::2])
+    X = d.solve(V[h[::2]], iterations=3)
+    assert np.abs(X - V).max() < 1e-4 * diag(V)
+
+
+def test_auto_picks_cuda_when_present():
+    V, F, h, _ = tube_model()
+    d = larap.Deformer(V, F, cells=800, device="auto")
+    assert d.device == ("cuda" if HAVE_CUDA else "cpu")
+    if not HAVE_CUDA:
+        with pytest.raises(RuntimeError):
+            larap.Deformer(V, F, cells=800, device="cuda")
+
+
+@need_cuda
+@pytest.mark.parametrize("solver,inner", [("pcg", 8), ("mg", 2), ("mg", 6)])
+def test_solvers_agree_with_cpu(solver, inner, monkeypatch):
+    """Every LARAP_CUDA_SOLVER choice converges to the CPU result (docs/cuda.md, Knobs)."""
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    ref = larap.Deformer(V, F, cells=1500, device="cpu")
+    ref.set_handles(h)
+    Xr = ref.solve(T, iterations=200)
+    monkeypatch.setenv("LARAP_CUDA_SOLVER", solver)
+    monkeypatch.setenv("LARAP_CUDA_INNER", str(inner))
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    d.set_handles(h)
+    iters = 200
+    X = d.solve(T, iterations=iters)
+    E = np.array(d.stats["energy"])
+    assert np.all(np.isfinite(E))
+    assert np.all(np.diff(E) <= 1e-4 * E[0] + 1e-7)
+    err = np.linalg.norm(X - Xr, axis=1).max()
+    assert err < 1e-4 * diag(V), f"max vertex distance {err / diag(V):.3g} of the diagonal"

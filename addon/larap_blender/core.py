@@ -1,0 +1,1065 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The add-on's real work, as plain functions (no operators, no UI): tests call these directly.
+
+Conventions
+-----------
+* Positions are object-local and go in and out of Blender as float32 numpy buffers through
+  ``foreach_get``/``foreach_set``; nothing loops over vertices in Python.
+* Rest positions come from the reference (Basis) shape key, or from the mesh when it has no keys.
+* The pose goes to the shape key ``Object.larap.shape_key`` ("LARAP"), relative to Basis.
+* User-facing failures raise :class:`LarapError` (operators turn it into a report).
+* The engine object (``larap.Deformer``) is runtime-only and lives in ``_RUNTIMES``; it is rebuilt
+  lazily from the stored settings (after reloading a .blend, an undo, a settings change, or an edit
+  of the rest positions).
+"""
+import contextlib
+import hashlib
+import time
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+
+from . import engine
+
+HANDLE_GROUP_PREFIX = "LARAP_handle_"
+TARGET_PREFIX = "LARAP_target_"
+ENGINE_ERRORS = (ValueError, MemoryError, RuntimeError, TypeError)
+
+
+class LarapError(Exception):
+    """A failure to report to the user (no traceback)."""
+
+
+class TopologyChanged(LarapError):
+    pass
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation
+
+def check_object(obj, *, need_bound=False, allow_edit_mode=False):
+    if obj is None:
+        raise LarapError("No active object")
+    try:
+        obj_type = obj.type
+    except ReferenceError:
+        raise LarapError("The object was deleted")
+    if obj_type != "MESH":
+        raise LarapError("LARAP works on meshes; %r is a %s" % (obj.name, obj_type.lower()))
+    if obj.library is not None or obj.data.library is not None:
+        raise LarapError("%r is linked from a library and not editable (make it local or override it)" % obj.name)
+    if obj.mode == "EDIT" and not allow_edit_mode:
+        raise LarapError("%r is in Edit Mode; switch to Object Mode first" % obj.name)
+    if need_bound and not obj.larap.bound:
+        raise LarapError("%r is not bound; use LARAP > Bind first" % obj.name)
+    return obj
+
+
+def _engine():
+    mod = engine.get()
+    if mod is None:
+        raise LarapError(engine.error())
+    return mod
+
+
+@contextlib.contextmanager
+def engine_errors(what):
+    """Turn engine exceptions into LarapError with the engine's message."""
+    try:
+        yield
+    except LarapError:
+        raise
+    except MemoryError as exc:
+        raise LarapError("%s: out of memory (%s); use fewer lattice cells" % (what, exc or "lattice too large"))
+    except ENGINE_ERRORS as exc:
+        raise LarapError("%s: %s" % (what, exc))
+
+
+# ----------------------------------------------------------------------------------------------
+# Mesh data (numpy, float32 buffers)
+
+def _get(collection, attr, count, dtype, width=1):
+    buf = np.empty(count * width, dtype=dtype)
+    collection.foreach_get(attr, buf)
+    return buf if width == 1 else buf.reshape(count, width)
+
+
+def rest_positions(obj):
+    """(n,3) float32 rest positions: the Basis key, or the mesh vertices when there are no keys."""
+    me = obj.data
+    n = len(me.vertices)
+    keys = me.shape_keys
+    if keys is not None and keys.reference_key is not None:
+        return _get(keys.reference_key.data, "co", n, np.float32, 3)
+    return _get(me.vertices, "co", n, np.float32, 3)
+
+
+def key_positions(obj, name):
+    me = obj.data
+    kb = me.shape_keys.key_blocks.get(name) if me.shape_keys else None
+    if kb is None:
+        return None
+    return _get(kb.data, "co", len(me.vertices), np.float32, 3)
+
+
+def _topology_arrays(me):
+    totals = _get(me.polygons, "loop_total", len(me.polygons), np.int32)
+    starts = _get(me.polygons, "loop_start", len(me.polygons), np.int32)
+    verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
+    return starts, totals, verts
+
+
+def topology_hash(me, arrays=None):
+    starts, totals, verts = arrays or _topology_arrays(me)
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.array([len(me.vertices), len(me.polygons), len(me.loops)], dtype=np.int64).tobytes())
+    h.update(totals.tobytes())
+    h.update(verts.tobytes())
+    return h.hexdigest()
+
+
+def triangles(me, arrays=None):
+    """(m,3) int32 fan triangulation of all polygons (empty for point clouds / edge meshes)."""
+    starts, totals, verts = arrays or _topology_arrays(me)
+    ntri = np.maximum(totals.astype(np.int64) - 2, 0)
+    total = int(ntri.sum())
+    if total == 0:
+        return np.zeros((0, 3), dtype=np.int32)
+    poly = np.repeat(np.arange(len(totals)), ntri)
+    k = np.arange(total) - np.repeat(np.cumsum(ntri) - ntri, ntri)
+    s = starts.astype(np.int64)[poly]
+    tris = np.stack([verts[s], verts[s + k + 1], verts[s + k + 2]], axis=1)
+    return np.ascontiguousarray(tris, dtype=np.int32)
+
+
+def _array_hash(a):
+    return hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest()
+
+
+def vertex_group_weights(obj, names):
+    """{name: (n,) float32 weights} for vertex groups, without a Python loop over vertices.
+
+    Blender exposes vertex-group membership only per vertex, so this lets Blender's shape-key
+    mixer do it in C: a temporary key = Basis + (0,0,1) masked by the group, mixed alone with
+    ``shape_key_add(from_mix=True)``, gives Basis + weight * (0,0,1). The temporary keys are
+    removed and the mesh's shape-key state is restored.
+    """
+    me = obj.data
+    n = len(me.vertices)
+    out = {}
+    names = [nm for nm in dict.fromkeys(names) if nm in obj.vertex_groups]
+    if not names or n == 0:
+        return out
+    had_keys = me.shape_keys is not None
+    active_index = obj.active_shape_key_index
+    show_only = obj.show_only_shape_key
+    if not had_keys:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    key = me.shape_keys
+    basis = key.reference_key
+    use_relative = key.use_relative
+    saved_mutes = [(kb.name, kb.mute) for kb in key.key_blocks]
+    base = _get(basis.data, "co", n, np.float32, 3)
+    raised = (base + np.array([0.0, 0.0, 1.0], dtype=np.float32)).ravel()
+    try:
+        key.use_relative = True
+        obj.show_only_shape_key = False
+        for kb in key.key_blocks:
+            if kb != basis:
+                kb.mute = True
+        basis_mute = basis.mute
+        basis.mute = False
+        for name in names:
+            tmp = obj.shape_key_add(name="_larap_tmp", from_mix=False)
+            mix = None
+            try:
+                tmp.data.foreach_set("co", raised)
+                tmp.relative_key = basis
+                tmp.vertex_group = name
+                tmp.slider_min, tmp.slider_max = 0.0, 1.0
+                tmp.value = 1.0
+                tmp.mute = False
+                mix = obj.shape_key_add(name="_larap_mix", from_mix=True)
+                mixed = _get(mix.data, "co", n, np.float32, 3)
+            finally:
+                if mix is not None:
+                    obj.shape_key_remove(mix)
+                obj.shape_key_remove(tmp)
+            out[name] = (mixed[:, 2] - base[:, 2]).astype(np.float32)
+        basis.mute = basis_mute
+    finally:
+        if not had_keys:
+            obj.shape_key_clear()
+        else:
+            key.use_relative = use_relative
+            for name, mute in saved_mutes:
+                kb = key.key_blocks.get(name)
+                if kb is not None:
+                    kb.mute = mute
+            obj.active_shape_key_index = active_index
+        obj.show_only_shape_key = show_only
+    return out
+
+
+def selected_vertices(obj):
+    me = obj.data
+    if obj.mode == "EDIT":
+        obj.update_from_editmode()
+    sel = _get(me.vertices, "select", len(me.vertices), bool)
+    return np.flatnonzero(sel)
+
+
+# ----------------------------------------------------------------------------------------------
+# Shape keys
+
+def ensure_pose_key(obj, settings=None):
+    """Basis (created from the mesh if there are no keys) and the pose key, relative to Basis."""
+    s = settings or obj.larap
+    me = obj.data
+    created_basis = False
+    if me.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+        created_basis = True
+    keys = me.shape_keys
+    basis = keys.reference_key
+    kb = keys.key_blocks.get(s.shape_key)
+    if kb is None or kb == basis:
+        if kb == basis:
+            raise LarapError("The pose shape key %r is the Basis key; choose another name" % s.shape_key)
+        kb = obj.shape_key_add(name=s.shape_key, from_mix=False)
+        kb.relative_key = basis
+        kb.value = 1.0
+    return kb, created_basis
+
+
+def write_pose(obj, co, settings=None):
+    """Write (n,3) positions into the pose key with one foreach_set and tag the mesh."""
+    kb, _ = ensure_pose_key(obj, settings)
+    buf = co if (co.dtype == np.float32 and co.flags.c_contiguous) else np.ascontiguousarray(co, dtype=np.float32)
+    kb.data.foreach_set("co", buf.reshape(-1))
+    obj.data.update_tag()
+    return kb
+
+
+def _remove_pose_key(obj):
+    s = obj.larap
+    keys = obj.data.shape_keys
+    if keys is None:
+        return
+    kb = keys.key_blocks.get(s.shape_key)
+    if kb is not None and kb != keys.reference_key:
+        obj.shape_key_remove(kb)
+    keys = obj.data.shape_keys
+    if s.created_basis and keys is not None and len(keys.key_blocks) == 1:
+        obj.shape_key_clear()
+    s.created_basis = False
+
+
+# ----------------------------------------------------------------------------------------------
+# Runtime cache (engine objects are never stored in the .blend)
+
+class Runtime:
+    def __init__(self):
+        self.deformer = None
+        self.pointer = 0
+        self.settings_sig = None
+        self.counts = None  # (verts, polys, loops)
+        self.topology = ""
+        self.rest = None
+        self.rest_hash = ""
+        self.out = None
+        self.membership = {}  # vertex group -> sorted int64 indices (weight > 0)
+        self.membership_sig = None
+        self.last_ms = 0.0
+        self.stats = {}
+        self.weights = ""
+        self.target_sig = None
+        self.pose_version = 0
+        self.last_error = ""
+        self.warnings = []
+
+
+_RUNTIMES = {}
+_SUSPEND = [0]
+
+
+def runtime(obj):
+    """The cached runtime of an object, or None (does not build)."""
+    try:
+        return _RUNTIMES.get(obj.name_full)
+    except ReferenceError:
+        return None
+
+
+def drop_runtime(obj_or_name=None):
+    if obj_or_name is None:
+        _RUNTIMES.clear()
+        return
+    name = obj_or_name if isinstance(obj_or_name, str) else obj_or_name.name_full
+    _RUNTIMES.pop(name, None)
+
+
+def prune_runtimes():
+    """Forget runtimes whose object is gone or unbound (cheap; called from handlers)."""
+    for name in list(_RUNTIMES):
+        obj = bpy.data.objects.get(name)
+        if obj is None or obj.type != "MESH" or not obj.larap.bound:
+            _RUNTIMES.pop(name, None)
+
+
+def resolve_device(settings):
+    dev = settings.device
+    if dev == "DEFAULT":
+        from .props import preferences
+        prefs = preferences()
+        dev = prefs.default_device if prefs is not None else "cpu"
+    return dev
+
+
+def _settings_sig(s):
+    """Settings that need a new lattice (gamma and weights are switched on the live engine)."""
+    if s.resolution_mode == "CELLS":
+        res = ("cells", int(s.cells))
+    elif s.resolution_mode == "SIZE":
+        res = ("size", float(s.cell_size))
+    else:
+        res = ("auto",)
+    return res + (resolve_device(s),)
+
+
+def _build_deformer(obj, rest, tris):
+    mod = _engine()
+    s = obj.larap
+    kwargs = dict(gamma=float(s.gamma), device=resolve_device(s), weights=s.weights_interactive)
+    if s.resolution_mode == "CELLS":
+        kwargs["cells"] = int(s.cells)
+    elif s.resolution_mode == "SIZE":
+        kwargs["cell_size"] = float(s.cell_size)
+    faces = tris if len(tris) else np.zeros((0, 3), dtype=np.int32)
+    with engine_errors("Bind failed"):
+        return mod.Deformer(rest, faces, **kwargs)
+
+
+def ensure_runtime(obj, validate="full"):
+    """Return a usable Runtime for a bound object, (re)building the engine when needed.
+
+    ``validate="full"``: hash the topology (raises TopologyChanged) and the rest positions (rebuild
+    when they changed), refresh the vertex-group membership. ``"fast"`` (live updates, drags):
+    counts only, unless the object was reloaded/undone (new pointer), then full.
+    """
+    s = obj.larap
+    me = obj.data
+    counts = (len(me.vertices), len(me.polygons), len(me.loops))
+    if counts[0] != s.bind_vertex_count:
+        raise TopologyChanged("%r changed topology since bind (%d vertices, %d at bind); rebind it (LARAP > Bind)"
+                              % (obj.name, counts[0], s.bind_vertex_count))
+    rt = _RUNTIMES.get(obj.name_full)
+    sig = _settings_sig(s)
+    pointer = obj.as_pointer()
+    if (validate == "fast" and rt is not None and rt.deformer is not None and rt.pointer == pointer
+            and rt.counts == counts and rt.settings_sig == sig):
+        return rt
+    arrays = _topology_arrays(me)
+    topo = topology_hash(me, arrays)
+    if topo != s.bind_topology:
+        raise TopologyChanged("%r changed topology since bind (faces differ); rebind it (LARAP > Bind)" % obj.name)
+    rest = rest_positions(obj)
+    rest_hash = _array_hash(rest)
+    if rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash or rt.topology != topo:
+        new = Runtime()
+        new.deformer = _build_deformer(obj, rest, triangles(me, arrays))
+        new.weights = s.weights_interactive
+        if rt is not None:
+            new.pose_version = rt.pose_version + 1
+        rt = new
+        _RUNTIMES[obj.name_full] = rt
+    rt.pointer = pointer
+    rt.counts = counts
+    rt.settings_sig = sig
+    rt.topology = topo
+    rt.rest = rest
+    rt.rest_hash = rest_hash
+    if rt.out is None or rt.out.shape != rest.shape:
+        rt.out = np.empty_like(rest)
+    rt.membership_sig = None  # refresh vertex groups on full validation
+    return rt
+
+
+def _membership(obj, rt):
+    s = obj.larap
+    names = tuple(h.vertex_group for h in s.handles if h.enabled and h.vertex_group)
+    available = tuple(nm for nm in names if nm in obj.vertex_groups)
+    if rt.membership_sig != available:
+        weights = vertex_group_weights(obj, available)
+        rt.membership = {nm: np.flatnonzero(w > 0.0) for nm, w in weights.items()}
+        rt.membership_sig = available
+    return rt.membership
+
+
+# ----------------------------------------------------------------------------------------------
+# Targets
+
+def _flat(m):
+    return [m[i][j] for i in range(4) for j in range(4)]
+
+
+def _matrix(flat):
+    return Matrix([flat[0:4], flat[4:8], flat[8:12], flat[12:16]])
+
+
+def target_alive(target):
+    if target is None:
+        return False
+    try:
+        return len(target.users_scene) > 0
+    except ReferenceError:
+        return False
+
+
+def target_matrix(handle, overrides=None):
+    """World matrix of a handle's target now, or raise LarapError (missing target/bone)."""
+    t = handle.target
+    if not target_alive(t):
+        raise LarapError("handle %r has no target (deleted?)" % handle.vertex_group)
+    key = (t.name_full, handle.subtarget)
+    if overrides and key in overrides:
+        return overrides[key]
+    if handle.subtarget:
+        if t.type != "ARMATURE" or t.pose is None or handle.subtarget not in t.pose.bones:
+            raise LarapError("handle %r: bone %r not found in %r" % (handle.vertex_group, handle.subtarget, t.name))
+        return t.matrix_world @ t.pose.bones[handle.subtarget].matrix
+    return t.matrix_world.copy()
+
+
+def handle_local_transform(obj, handle, overrides=None):
+    """Target motion since bind, expressed in the mesh object's local space (4x4 numpy)."""
+    now = target_matrix(handle, overrides)
+    rest = _matrix(handle.rest_matrix)
+    mw = obj.matrix_world
+    local = mw.inverted_safe() @ now @ rest.inverted_safe() @ mw
+    return np.array(local, dtype=np.float64)
+
+
+def record_rest(handle, overrides=None):
+    handle.rest_matrix = _flat(target_matrix(handle, overrides))
+    handle.has_rest = True
+
+
+def _gather(obj, rt, overrides=None):
+    """Handle indices (unique, first group wins) and their target positions; warnings for skipped handles."""
+    s = obj.larap
+    membership = _membership(obj, rt)
+    warnings = []
+    idx_parts, tgt_parts = [], []
+    for h in s.handles:
+        if not h.enabled:
+            continue
+        label = h.vertex_group or "(no group)"
+        if h.vertex_group not in obj.vertex_groups:
+            warnings.append("handle %r skipped: vertex group not found" % label)
+            continue
+        idx = membership.get(h.vertex_group)
+        if idx is None or len(idx) == 0:
+            warnings.append("handle %r skipped: vertex group is empty" % label)
+            continue
+        if not h.has_rest:
+            warnings.append("handle %r skipped: not bound (rebind)" % label)
+            continue
+        try:
+            local = handle_local_transform(obj, h, overrides)
+        except LarapError as exc:
+            warnings.append("%s; skipped" % exc)
+            continue
+        p = rt.rest[idx].astype(np.float64)
+        idx_parts.append(idx)
+        tgt_parts.append(p @ local[:3, :3].T + local[:3, 3])
+    if not idx_parts:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), warnings
+    idx = np.concatenate(idx_parts)
+    tgt = np.concatenate(tgt_parts)
+    uniq, first = np.unique(idx, return_index=True)
+    return uniq.astype(np.int64), np.ascontiguousarray(tgt[first]), warnings
+
+
+def target_signature(obj):
+    """Current target matrices of an object's handles (to skip redundant live solves)."""
+    sig = [tuple(obj.matrix_world.col[3]) + tuple(obj.matrix_world.col[0]) + tuple(obj.matrix_world.col[1])
+           + tuple(obj.matrix_world.col[2])]
+    for h in obj.larap.handles:
+        try:
+            m = target_matrix(h)
+            sig.append(tuple(_flat(m)))
+        except LarapError:
+            sig.append(None)
+    return tuple(sig)
+
+
+def target_names(obj):
+    names = set()
+    for h in obj.larap.handles:
+        t = h.target
+        try:
+            if t is not None:
+                names.add(t.name_full)
+        except ReferenceError:
+            pass
+    return names
+
+
+# ----------------------------------------------------------------------------------------------
+# Operations
+
+class SolveResult:
+    def __init__(self, ms, engine_ms, warnings, weights, handles):
+        self.ms = ms
+        self.engine_ms = engine_ms
+        self.warnings = warnings
+        self.weights = weights
+        self.handles = handles
+
+
+def _weights_name(s, which):
+    if which in ("trilinear", "bspline"):
+        return which
+    return s.weights_final if which == "final" else s.weights_interactive
+
+
+def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
+    """One solve from the current target transforms; writes the pose key. Returns SolveResult."""
+    check_object(obj, need_bound=True)
+    s = obj.larap
+    t0 = time.perf_counter()
+    rt = ensure_runtime(obj, validate)
+    d = rt.deformer
+    idx, tgt, warnings = _gather(obj, rt, overrides)
+    wname = _weights_name(s, weights)
+    engine_ms = 0.0
+    with engine_errors("Solve failed"):
+        if len(idx) == 0:
+            warnings.append("no usable handles: rest pose written")
+            np.copyto(rt.out, rt.rest)
+        else:
+            current = np.asarray(d.handles)
+            if current.shape != idx.shape or not np.array_equal(current, idx):
+                d.set_handles(idx)
+            if d.weights != wname:
+                d.weights = wname
+            if abs(float(d.gamma) - float(s.gamma)) > 1e-12 * max(1.0, float(s.gamma)):
+                d.gamma = float(s.gamma)
+            d.solve(tgt, int(s.iterations), out=rt.out)
+            stats = dict(d.stats)
+            rt.stats = stats
+            engine_ms = float(stats.get("ms_total", 0.0))
+    rt.weights = wname
+    if write:
+        write_pose(obj, rt.out)
+    rt.pose_version += 1
+    rt.last_ms = (time.perf_counter() - t0) * 1e3
+    rt.last_error = ""
+    rt.warnings = warnings
+    rt.target_sig = target_signature(obj) if not overrides else None
+    return SolveResult(rt.last_ms, engine_ms, warnings, wname, len(idx))
+
+
+def current_pose(obj):
+    """The pose to bake/apply: the pose key as it is when it is up to date (solved with the final
+    weights from the current target transforms, so what you see is what you get), else a new solve
+    with the final weights. Returns (n,3) float32."""
+    check_object(obj, need_bound=True)
+    s = obj.larap
+    rt = ensure_runtime(obj, "full")
+    posed = key_positions(obj, s.shape_key)
+    if (posed is not None and rt.target_sig is not None and rt.weights == s.weights_final
+            and rt.target_sig == target_signature(obj)):
+        return posed
+    solve(obj, weights="final", validate="fast")
+    return runtime(obj).out.copy()
+
+
+def bind(obj):
+    """Build the lattice + binding from the rest positions, record the targets' rest matrices and
+    write the (rest) pose key. Rebinding resets the pose: the current target transforms become rest."""
+    check_object(obj)
+    s = obj.larap
+    me = obj.data
+    _engine()
+    arrays = _topology_arrays(me)
+    rest = rest_positions(obj)
+    rt = Runtime()
+    rt.deformer = _build_deformer(obj, rest, triangles(me, arrays))
+    rt.weights = s.weights_interactive
+    old = _RUNTIMES.get(obj.name_full)
+    if old is not None:
+        rt.pose_version = old.pose_version + 1
+    rt.pointer = obj.as_pointer()
+    rt.counts = (len(me.vertices), len(me.polygons), len(me.loops))
+    rt.settings_sig = _settings_sig(s)
+    rt.topology = topology_hash(me, arrays)
+    rt.rest = rest
+    rt.rest_hash = _array_hash(rest)
+    rt.out = np.empty_like(rest)
+    _RUNTIMES[obj.name_full] = rt
+    s.bind_vertex_count = len(me.vertices)
+    s.bind_topology = rt.topology
+    for h in s.handles:
+        if target_alive(h.target):
+            try:
+                record_rest(h)
+            except LarapError:
+                h.has_rest = False
+        else:
+            h.has_rest = False
+    had_keys = me.shape_keys is not None
+    _, created = ensure_pose_key(obj, s)
+    if created and not had_keys:
+        s.created_basis = True
+    s.bound = True
+    try:
+        return solve(obj, weights="final", validate="fast")
+    except LarapError:
+        s.bound = False
+        drop_runtime(obj)
+        raise
+
+
+def unbind(obj):
+    check_object(obj)
+    _remove_pose_key(obj)
+    obj.larap.bound = False
+    drop_runtime(obj)
+
+
+def _next_group_name(obj):
+    used = set()
+    for vg in obj.vertex_groups:
+        if vg.name.startswith(HANDLE_GROUP_PREFIX) and vg.name[len(HANDLE_GROUP_PREFIX):].isdigit():
+            used.add(int(vg.name[len(HANDLE_GROUP_PREFIX):]))
+    n = 1
+    while n in used:
+        n += 1
+    return HANDLE_GROUP_PREFIX + str(n)
+
+
+def _kabsch(p, q):
+    """Rigid 4x4 (numpy) with q ~ R p + t."""
+    cp, cq = p.mean(axis=0), q.mean(axis=0)
+    h = (p - cp).T @ (q - cq)
+    u, _, vt = np.linalg.svd(h)
+    dfix = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, 1.0, dfix]) @ u.T
+    m = np.eye(4)
+    m[:3, :3] = r
+    m[:3, 3] = cq - r @ cp
+    return m
+
+
+def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subtarget="", collection=None):
+    """Add a handle group. ``from_selection``: new vertex group LARAP_handle_N from the selected vertices.
+    Without a target, an Empty is created at the group's centre (placed on the current pose when
+    the mesh is posed, so adding a handle does not make the mesh jump)."""
+    check_object(obj, allow_edit_mode=from_selection)
+    s = obj.larap
+    if from_selection:
+        sel = selected_vertices(obj)
+        if len(sel) == 0:
+            raise LarapError("No vertices selected")
+        was_edit = obj.mode == "EDIT"
+        if was_edit:
+            bpy.ops.object.mode_set(mode="OBJECT")
+        try:
+            vg = obj.vertex_groups.new(name=_next_group_name(obj))
+            vg.add(sel.tolist(), 1.0, "REPLACE")
+        finally:
+            if was_edit:
+                bpy.ops.object.mode_set(mode="EDIT")
+        vertex_group = vg.name
+    if not vertex_group:
+        raise LarapError("Give a vertex group, or select vertices in Edit Mode")
+    if vertex_group not in obj.vertex_groups:
+        raise LarapError("%r has no vertex group %r" % (obj.name, vertex_group))
+    if any(h.vertex_group == vertex_group for h in s.handles):
+        raise LarapError("Vertex group %r is already a handle" % vertex_group)
+    if obj.mode == "EDIT":
+        obj.update_from_editmode()
+    idx = np.flatnonzero(vertex_group_weights(obj, [vertex_group])[vertex_group] > 0.0)
+    if len(idx) == 0:
+        raise LarapError("Vertex group %r has no vertices" % vertex_group)
+    if target is not None:
+        if target == obj:
+            raise LarapError("A mesh cannot be its own handle target")
+        if subtarget and (target.type != "ARMATURE" or subtarget not in target.pose.bones):
+            raise LarapError("Bone %r not found in %r" % (subtarget, target.name))
+    rest = rest_positions(obj)[idx].astype(np.float64)
+    fit = np.eye(4)
+    rest_matrix = None
+    if target is None:
+        posed = key_positions(obj, s.shape_key) if s.bound else None
+        if posed is not None and len(idx) >= 3:
+            q = posed[idx].astype(np.float64)
+            if np.abs(q - rest).max() > 0:
+                fit = _kabsch(rest, q)
+        mw = obj.matrix_world
+        centre = rest.mean(axis=0)
+        ext = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(idx) > 1 else 0.0
+        name = TARGET_PREFIX + (vertex_group[len(HANDLE_GROUP_PREFIX):] if vertex_group.startswith(HANDLE_GROUP_PREFIX)
+                                else vertex_group)
+        empty = bpy.data.objects.new(name, None)
+        empty.empty_display_type = "SPHERE"
+        size = ext * 0.6 if ext > 0 else 0.1 * max(obj.dimensions.length, 1e-3)
+        empty.empty_display_size = max(size / max(mw.to_scale().length / 3 ** 0.5, 1e-9), 1e-4)
+        rest_world = mw @ Matrix.Translation(Vector(centre))
+        coll = collection or (obj.users_collection[0] if obj.users_collection else bpy.context.scene.collection)
+        coll.objects.link(empty)
+        empty.matrix_world = rest_world
+        rest_matrix = rest_world
+        empty.matrix_world = mw @ Matrix(fit.tolist()) @ mw.inverted_safe() @ rest_world
+        target = empty
+    h = s.handles.add()
+    h.vertex_group = vertex_group
+    h.target = target
+    h.subtarget = subtarget
+    if rest_matrix is not None:
+        h.rest_matrix = _flat(rest_matrix)
+        h.has_rest = True
+    else:
+        record_rest(h)
+    s.active_handle = len(s.handles) - 1
+    rt = runtime(obj)
+    if rt is not None:
+        rt.membership_sig = None
+    return h
+
+
+def remove_handle(obj, index, *, delete_target=False, delete_group=False):
+    check_object(obj, allow_edit_mode=True)
+    s = obj.larap
+    if not (0 <= index < len(s.handles)):
+        raise LarapError("No handle %d" % index)
+    h = s.handles[index]
+    target, group = h.target, h.vertex_group
+    s.handles.remove(index)
+    s.active_handle = max(0, min(s.active_handle, len(s.handles) - 1))
+    if delete_target and target_alive(target) and target.name.startswith(TARGET_PREFIX):
+        if not any(o.target == target for o in s.handles):
+            bpy.data.objects.remove(target)
+    if delete_group and group in obj.vertex_groups and obj.mode != "EDIT":
+        obj.vertex_groups.remove(obj.vertex_groups[group])
+    rt = runtime(obj)
+    if rt is not None:
+        rt.membership_sig = None
+
+
+def bake_shape_key(obj, name="LARAP_pose"):
+    """Store the current pose (see current_pose) as a new key (value 0) relative to Basis."""
+    co = current_pose(obj)
+    keys = obj.data.shape_keys
+    if name == obj.larap.shape_key or (keys.reference_key and name == keys.reference_key.name):
+        raise LarapError("Choose a name other than %r" % name)
+    kb = keys.key_blocks.get(name)
+    if kb is None:
+        kb = obj.shape_key_add(name=name, from_mix=False)
+    kb.data.foreach_set("co", co.reshape(-1))
+    kb.relative_key = keys.reference_key
+    kb.value = 0.0
+    obj.data.update_tag()
+    return kb
+
+
+@contextlib.contextmanager
+def suspend_live():
+    _SUSPEND[0] += 1
+    try:
+        yield
+    finally:
+        _SUSPEND[0] -= 1
+
+
+def live_suspended():
+    return _SUSPEND[0] > 0
+
+
+def _set_linear(key, data_path):
+    ad = key.animation_data
+    if ad is None or ad.action is None:
+        return
+    fc = ad.action.fcurves.find(data_path)
+    if fc is not None:
+        for kp in fc.keyframe_points:
+            kp.interpolation = "LINEAR"
+
+
+def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_"):
+    """One solve per frame from the animated targets (warm-started), each pose a key named
+    ``<prefix><frame:04d>`` keyed to 1 on its frame and 0 on the neighbouring baked frames.
+    The live pose key is set to 0 afterwards so it does not add to the baked keys."""
+    check_object(obj, need_bound=True)
+    if frame_end < frame_start:
+        raise LarapError("Frame range is empty (%d..%d)" % (frame_start, frame_end))
+    step = max(1, int(step))
+    frames = list(range(int(frame_start), int(frame_end) + 1, step))
+    old_frame, old_sub = scene.frame_current, scene.frame_subframe
+    names = []
+    with suspend_live():
+        try:
+            first = True
+            for f in frames:
+                scene.frame_set(f)
+                solve(obj, weights="final", validate="full" if first else "fast")
+                first = False
+                co = runtime(obj).out
+                keys = obj.data.shape_keys
+                name = "%s%04d" % (prefix, f)
+                kb = keys.key_blocks.get(name)
+                if kb is None:
+                    kb = obj.shape_key_add(name=name, from_mix=False)
+                kb.data.foreach_set("co", co.reshape(-1))
+                kb.relative_key = keys.reference_key
+                path = 'key_blocks["%s"].value' % name
+                ad = keys.animation_data
+                if ad is not None and ad.action is not None:
+                    fc = ad.action.fcurves.find(path)
+                    if fc is not None:
+                        ad.action.fcurves.remove(fc)
+                for frame, value in ((f - step, 0.0), (f, 1.0), (f + step, 0.0)):
+                    kb.value = value
+                    kb.keyframe_insert("value", frame=frame)
+                _set_linear(keys, path)
+                names.append(name)
+        finally:
+            scene.frame_set(old_frame, subframe=old_sub)
+    pose = obj.data.shape_keys.key_blocks.get(obj.larap.shape_key)
+    if pose is not None:
+        pose.value = 0.0
+    obj.data.update_tag()
+    return names
+
+
+def apply_pose(obj):
+    """Write the current pose (see current_pose) into the mesh (Basis and every other key move
+    along, keeping their offsets), remove the pose key and unbind."""
+    pose = current_pose(obj)
+    rt = runtime(obj)
+    delta = pose - rt.rest
+    me = obj.data
+    s = obj.larap
+    n = len(me.vertices)
+    keys = me.shape_keys
+    if keys is not None:
+        for kb in keys.key_blocks:
+            if kb.name == s.shape_key:
+                continue
+            co = _get(kb.data, "co", n, np.float32, 3)
+            kb.data.foreach_set("co", (co + delta).astype(np.float32).reshape(-1))
+    me.vertices.foreach_set("co", pose.reshape(-1))
+    _remove_pose_key(obj)
+    for h in s.handles:
+        h.has_rest = False
+    s.bound = False
+    drop_runtime(obj)
+    me.update()
+    return pose
+
+
+# ----------------------------------------------------------------------------------------------
+# Live updates (called from handlers.py)
+
+def live_update(scene, updated_names=None):
+    """Re-solve every live, bound mesh of ``scene`` whose targets moved. ``updated_names``: the
+    objects the depsgraph reported (None: check all). Never raises; errors land in rt.last_error."""
+    if live_suspended():
+        return 0
+    solved = 0
+    with suspend_live():
+        for obj in list(scene.objects):
+            try:
+                if obj.type != "MESH" or not obj.larap.bound or not obj.larap.live:
+                    continue
+            except ReferenceError:
+                continue
+            targets = target_names(obj)
+            if updated_names is not None and not (targets & updated_names):
+                continue
+            rt = runtime(obj)
+            if rt is not None and rt.target_sig is not None and rt.target_sig == target_signature(obj):
+                continue
+            try:
+                if obj.mode == "EDIT":
+                    continue
+                solve(obj, weights="interactive", validate="fast")
+                solved += 1
+            except Exception as exc:  # a handler must never raise; LarapError is the expected kind
+                msg = str(exc) if isinstance(exc, LarapError) else "internal error: %s: %s" % (
+                    type(exc).__name__, exc)
+                rt = runtime(obj)
+                if rt is None:
+                    rt = _RUNTIMES.setdefault(obj.name_full, Runtime())
+                if rt.last_error != msg:
+                    print("LARAP live update of %r: %s" % (obj.name, msg))
+                    if not isinstance(exc, LarapError):
+                        import traceback
+                        traceback.print_exc()
+                rt.last_error = msg
+                try:
+                    rt.target_sig = target_signature(obj)
+                except Exception:
+                    rt.target_sig = None
+    return solved
+
+
+# ----------------------------------------------------------------------------------------------
+# Interactive posing (the modal operator drives this; tests drive it directly)
+
+def handle_points(obj, refresh=True):
+    """(world positions (k,3), handle index per point) of the handle vertices in the current pose.
+    ``refresh=False`` (draw callbacks): use the cached vertex-group membership, never touch data."""
+    rt = runtime(obj)
+    s = obj.larap
+    if rt is None or rt.rest is None:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    posed = key_positions(obj, s.shape_key)
+    if posed is None:
+        posed = rt.rest
+    membership = _membership(obj, rt) if refresh else rt.membership
+    pts, owner = [], []
+    for i, h in enumerate(s.handles):
+        idx = membership.get(h.vertex_group)
+        if idx is None or len(idx) == 0 or not h.enabled:
+            continue
+        pts.append(posed[idx])
+        owner.append(np.full(len(idx), i, dtype=np.int64))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    p = np.concatenate(pts).astype(np.float64)
+    mw = np.array(obj.matrix_world)
+    return p @ mw[:3, :3].T + mw[:3, 3], np.concatenate(owner)
+
+
+_TRANSFORM_ATTRS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale")
+
+
+def _transform_snapshot(target, bone):
+    holder = target.pose.bones[bone] if bone else target
+    snap = {attr: tuple(getattr(holder, attr)) for attr in _TRANSFORM_ATTRS}
+    snap["rotation_mode"] = holder.rotation_mode
+    snap["matrix_world"] = None if bone else target.matrix_world.copy()
+    return snap
+
+
+def _transform_restore(target, bone, snap):
+    """Exact restore: the world matrix first (so it is right before the next depsgraph update),
+    then the loc/rot/scale channels it was decomposed from, as they were (no round-off)."""
+    holder = target.pose.bones[bone] if bone else target
+    if snap["matrix_world"] is not None:
+        target.matrix_world = snap["matrix_world"]
+    holder.rotation_mode = snap["rotation_mode"]
+    for attr in _TRANSFORM_ATTRS:
+        setattr(holder, attr, snap[attr])
+
+
+class PoseSession:
+    """Drag one handle: move/rotate/scale its target about the handle's current centre.
+
+    begin() snapshots the pose key and the target's transform; update() solves with the interactive
+    weights and writes only the pose key; confirm() re-solves with the final weights; cancel()
+    restores the snapshot bit-exactly.
+    """
+
+    def __init__(self, obj, handle_index):
+        self.obj = obj
+        self.handle_index = handle_index
+        self.active = False
+        self.last = None
+
+    @property
+    def handle(self):
+        return self.obj.larap.handles[self.handle_index]
+
+    def begin(self):
+        obj = self.obj
+        check_object(obj, need_bound=True)
+        s = obj.larap
+        if not (0 <= self.handle_index < len(s.handles)):
+            raise LarapError("No handle %d" % self.handle_index)
+        h = self.handle
+        if not target_alive(h.target):
+            raise LarapError("Handle %r has no target" % h.vertex_group)
+        self.target = h.target
+        self.bone = h.subtarget
+        if self.bone and (self.target.type != "ARMATURE" or self.bone not in self.target.pose.bones):
+            raise LarapError("Bone %r not found in %r" % (self.bone, self.target.name))
+        rt = ensure_runtime(obj, "full")
+        self.key_existed = bool(obj.data.shape_keys and obj.data.shape_keys.key_blocks.get(s.shape_key))
+        self.snapshot = key_positions(obj, s.shape_key) if self.key_existed else None
+        self.transform = _transform_snapshot(self.target, self.bone)
+        self.start_matrix = target_matrix(h)
+        idx = _membership(obj, rt).get(h.vertex_group)
+        if idx is None or len(idx) == 0:
+            raise LarapError("Handle %r has no vertices" % h.vertex_group)
+        posed = self.snapshot if self.snapshot is not None else rt.rest
+        centre = posed[idx].astype(np.float64).mean(axis=0)
+        self.pivot = obj.matrix_world @ Vector(centre)
+        self.overrides_key = (self.target.name_full, self.bone)
+        self.active = True
+        return self
+
+    def delta_matrix(self, translation=(0.0, 0.0, 0.0), rotation=None, scale=None):
+        """World delta: rotate/scale about the pivot, then translate."""
+        pivot = Matrix.Translation(self.pivot)
+        m = Matrix.Identity(4)
+        if scale is not None:
+            m = Matrix.Diagonal(Vector((scale[0], scale[1], scale[2], 1.0))) @ m
+        if rotation is not None:
+            rot = rotation.to_matrix() if hasattr(rotation, "to_matrix") else Matrix(rotation)
+            m = rot.to_4x4() @ m
+        return Matrix.Translation(Vector(translation)) @ pivot @ m @ pivot.inverted()
+
+    def set_target_matrix(self, world):
+        if self.bone:
+            arm = self.target
+            arm.pose.bones[self.bone].matrix = arm.matrix_world.inverted_safe() @ world
+        else:
+            self.target.matrix_world = world
+
+    def update(self, translation=(0.0, 0.0, 0.0), rotation=None, scale=None, weights="interactive"):
+        if not self.active:
+            raise LarapError("Pose session is not active")
+        world = self.delta_matrix(translation, rotation, scale) @ self.start_matrix
+        self.set_target_matrix(world)
+        self.world = world
+        self.last = solve(self.obj, weights=weights, validate="fast", overrides={self.overrides_key: world})
+        return self.last
+
+    def confirm(self):
+        if not self.active:
+            return self.last
+        overrides = {self.overrides_key: self.world} if hasattr(self, "world") else None
+        self.last = solve(self.obj, weights="final", validate="fast", overrides=overrides)
+        rt = runtime(self.obj)
+        if rt is not None:
+            rt.target_sig = None
+        self.active = False
+        return self.last
+
+    def cancel(self):
+        if not self.active:
+            return
+        obj = self.obj
+        _transform_restore(self.target, self.bone, self.transform)
+        s = obj.larap
+        if self.key_existed:
+            kb = obj.data.shape_keys.key_blocks.get(s.shape_key)
+            if kb is None:
+                kb, _ = ensure_pose_key(obj, s)
+            kb.data.foreach_set("co", self.snapshot.reshape(-1))
+        else:
+            keys = obj.data.shape_keys
+            kb = keys.key_blocks.get(s.shape_key) if keys else None
+            if kb is not None:
+                obj.shape_key_remove(kb)
+        obj.data.update_tag()
+        rt = runtime(obj)
+        if rt is not None:
+            rt.target_sig = None
+            rt.pose_version += 1
+        self.active = False

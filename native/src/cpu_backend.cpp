@@ -39,28 +39,12 @@ class CpuBackend final : public Backend {
   void set_handles(const HandleSystem& hs) override {
     hs_ = hs;
     const int64_t n = lat_.num_nodes();
-    std::vector<Eigen::Triplet<double>> trip;
-    trip.reserve(lat_.edges.size() * 4 + size_t(n));
-    const double g2 = 2.0 * hs.gamma_eff;
-    for (const auto& e : lat_.edges) {
-      trip.emplace_back(e[0], e[0], g2);
-      trip.emplace_back(e[1], e[1], g2);
-      trip.emplace_back(e[0], e[1], -g2);
-      trip.emplace_back(e[1], e[0], -g2);
-    }
-    for (int64_t i = 0; i < n; ++i)
-      if (hs.anchored[i]) trip.emplace_back(int(i), int(i), hs.anchor_weight);
+    const auto trip = arap_triplets(lat_, hs);
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     B_.resize(hs.m, n);
-    {
-      std::vector<Eigen::Triplet<double>> bt;
-      bt.reserve(size_t(hs.m) * hs.stencil);
-      for (int64_t j = 0; j < hs.m; ++j)
-        for (int k = 0; k < hs.stencil; ++k)
-          bt.emplace_back(int(j), hs.ids[j * hs.stencil + k], hs.weights[j * hs.stencil + k]);
-      B_.setFromTriplets(bt.begin(), bt.end());
-    }
+    const auto bt = handle_triplets(hs);
+    B_.setFromTriplets(bt.begin(), bt.end());
     Bt_ = B_.transpose();
     A += Eigen::SparseMatrix<double>(Bt_ * B_);
     A.makeCompressed();

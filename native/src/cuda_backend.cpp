@@ -292,28 +292,12 @@ class CudaBackend final : public Backend {
     const int n = n_;
     const int64_t m = hs.m;
     using SpR = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
-    std::vector<Eigen::Triplet<double>> trip;
-    trip.reserve(lat_.edges.size() * 4 + size_t(n));
-    const double g2 = 2.0 * hs.gamma_eff;
-    for (const auto& e : lat_.edges) {
-      trip.emplace_back(e[0], e[0], g2);
-      trip.emplace_back(e[1], e[1], g2);
-      trip.emplace_back(e[0], e[1], -g2);
-      trip.emplace_back(e[1], e[0], -g2);
-    }
-    for (int i = 0; i < n; ++i)
-      if (hs.anchored[i]) trip.emplace_back(i, i, hs.anchor_weight);
+    const auto trip = arap_triplets(lat_, hs);
     SpR A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     SpR B(m, n);
-    {
-      std::vector<Eigen::Triplet<double>> bt;
-      bt.reserve(size_t(m) * hs.stencil);
-      for (int64_t j = 0; j < m; ++j)
-        for (int k = 0; k < hs.stencil; ++k)
-          bt.emplace_back(int(j), hs.ids[j * hs.stencil + k], hs.weights[j * hs.stencil + k]);
-      B.setFromTriplets(bt.begin(), bt.end());
-    }
+    const auto bt = handle_triplets(hs);
+    B.setFromTriplets(bt.begin(), bt.end());
     const SpR Bt = B.transpose();
     A = SpR(A + SpR(Bt * B));
     A.makeCompressed();

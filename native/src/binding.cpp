@@ -1,7 +1,10 @@
 #include <larap/binding.h>
 #include <larap/errors.h>
 
+#include <atomic>
 #include <cmath>
+
+#include "parallel.h"
 
 namespace larap {
 
@@ -30,8 +33,7 @@ void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
   const int64_t n = b.num_vertices();
   const double* d = D.data();
   if (b.kind == WeightKind::Trilinear) {
-#pragma omp parallel for schedule(static)
-    for (int64_t v = 0; v < n; ++v) {
+    parallel_for(n, [&](int64_t v) {
       const auto& ids = lat.cell_nodes[b.base[v]];
       const double fx = b.frac[3 * v], fy = b.frac[3 * v + 1], fz = b.frac[3 * v + 2];
       const double wx[2] = {1.0 - fx, fx}, wy[2] = {1.0 - fy, fy}, wz[2] = {1.0 - fz, fz};
@@ -44,10 +46,9 @@ void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
         acc[2] += w * p[2];
       }
       for (int k = 0; k < 3; ++k) out[3 * v + k] = static_cast<T>(V(v, k) + acc[k]);
-    }
+    }, 2048);
   } else {
-#pragma omp parallel for schedule(static)
-    for (int64_t v = 0; v < n; ++v) {
+    parallel_for(n, [&](int64_t v) {
       const int32_t* ids = b.node27.data() + 27 * int64_t(b.base[v]);
       double wx[3], wy[3], wz[3];
       bspline3(b.frac[3 * v], wx);
@@ -67,7 +68,7 @@ void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
           }
         }
       for (int c = 0; c < 3; ++c) out[3 * v + c] = static_cast<T>(V(v, c) + acc[c]);
-    }
+    }, 1024);
   }
 }
 
@@ -103,10 +104,9 @@ Binding bind_vertices(const Lattice& lat, const RowMatrixX3d& V, WeightKind kind
   const int64_t n = V.rows();
   b.base.resize(static_cast<size_t>(n));
   b.frac.resize(static_cast<size_t>(3 * n));
-  bool missing = false;
+  std::atomic<bool> missing{false};
   if (kind == WeightKind::Trilinear) {
-#pragma omp parallel for schedule(static) reduction(|| : missing)
-    for (int64_t v = 0; v < n; ++v) {
+    parallel_for(n, [&](int64_t v) {
       int c[3];
       for (int a = 0; a < 3; ++a) {
         const double local = (V(v, a) - lat.origin[a]) / lat.h;
@@ -115,21 +115,19 @@ Binding bind_vertices(const Lattice& lat, const RowMatrixX3d& V, WeightKind kind
         b.frac[3 * v + a] = static_cast<float>(std::clamp(local - c[a], 0.0, 1.0));
       }
       b.base[v] = lat.cell_at(c[0], c[1], c[2]);
-      missing = missing || b.base[v] < 0;
-    }
+      if (b.base[v] < 0) missing = true;
+    }, 4096);
   } else {
     const int64_t nn = lat.num_nodes();
     b.node27.assign(static_cast<size_t>(27 * nn), -1);
-#pragma omp parallel for schedule(static)
-    for (int64_t i = 0; i < nn; ++i) {
+    parallel_for(nn, [&](int64_t i) {
       const Eigen::Vector3i& p = lat.node_coords[i];
       int k = 0;
       for (int z = -1; z <= 1; ++z)
         for (int y = -1; y <= 1; ++y)
           for (int x = -1; x <= 1; ++x, ++k) b.node27[27 * i + k] = lat.node_at(p.x() + x, p.y() + y, p.z() + z);
-    }
-#pragma omp parallel for schedule(static) reduction(|| : missing)
-    for (int64_t v = 0; v < n; ++v) {
+    });
+    parallel_for(n, [&](int64_t v) {
       int c[3];
       for (int a = 0; a < 3; ++a) {
         const double local = (V(v, a) - lat.origin[a]) / lat.h;
@@ -141,8 +139,8 @@ Binding bind_vertices(const Lattice& lat, const RowMatrixX3d& V, WeightKind kind
       b.base[v] = id;
       bool complete = id >= 0;
       for (int k = 0; complete && k < 27; ++k) complete = b.node27[27 * int64_t(id) + k] >= 0;
-      missing = missing || !complete;
-    }
+      if (!complete) missing = true;
+    }, 4096);
   }
   if (missing)
     throw InvalidInput("internal: a vertex lies outside the lattice it was built for (was the "

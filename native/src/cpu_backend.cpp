@@ -1,5 +1,5 @@
-// CPU backend: OpenMP over nodes for rotations and right-hand side, CHOLMOD (supernodal
-// Cholesky) for the global step, factorised once per handle set.
+// CPU backend: parallel loops over nodes for rotations, right-hand side and energy (parallel.h),
+// CHOLMOD (simplicial Cholesky) for the global step, factorised once per handle set.
 #include <larap/errors.h>
 
 #ifdef LARAP_WITH_CHOLMOD
@@ -12,12 +12,16 @@
 
 #include "backend.h"
 #include "energy.h"
+#include "parallel.h"
 
 namespace larap {
 namespace {
 
 #ifdef LARAP_WITH_CHOLMOD
-using Factor = Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>>;
+// Simplicial: with Debian's reference BLAS the supernodal factor's solves with 3 right-hand
+// sides were 2-4x slower (docs/results.md), and the simplicial solve calls no BLAS, so the result
+// does not depend on the thread count.
+using Factor = Eigen::CholmodSimplicialLLT<Eigen::SparseMatrix<double>>;
 #else
 using Factor = Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>>;
 #endif
@@ -109,25 +113,26 @@ class CpuBackend final : public Backend {
 
   void rotations() {
     const int64_t n = lat_.num_nodes();
-    const auto& P = pose_;
-    const auto& C = lat_.rest;
-#pragma omp parallel for schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
+    const double* P = pose_.data();
+    const double* C = lat_.rest.data();
+    const int32_t* off = lat_.adj_offsets.data();
+    const int32_t* adj = lat_.adj.data();
+    parallel_for(n, [&](int64_t i) {
+      const Eigen::Vector3d pi(P + 3 * i), ci(C + 3 * i);
       Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
-      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
-        const int32_t j = lat_.adj[k];
-        S += (P.row(i) - P.row(j)).transpose() * (C.row(i) - C.row(j));
+      for (int32_t k = off[i]; k < off[i + 1]; ++k) {
+        const int64_t j = adj[k];
+        S.noalias() += (pi - Eigen::Vector3d(P + 3 * j)) * (ci - Eigen::Vector3d(C + 3 * j)).transpose();
       }
       R_[i] = best_rotation_fast(S);
-    }
+    }, 256);
   }
 
   void right_hand_side(const Eigen::MatrixX3d& Btt) {
     const int64_t n = lat_.num_nodes();
     const auto& C = lat_.rest;
     const double g = hs_.gamma_eff, a = hs_.anchor_weight;
-#pragma omp parallel for schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
+    parallel_for(n, [&](int64_t i) {
       Eigen::Vector3d b = Eigen::Vector3d::Zero();
       for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
         const int32_t j = lat_.adj[k];
@@ -136,7 +141,7 @@ class CpuBackend final : public Backend {
       b = g * b + Btt.row(i).transpose();
       if (hs_.anchored[i]) b += a * C.row(i).transpose();
       rhs_.row(i) = b.transpose();
-    }
+    }, 1024);
   }
 
   // Energy of the current pose with the current rotations (scaled).
@@ -144,8 +149,7 @@ class CpuBackend final : public Backend {
     const int64_t n = lat_.num_nodes();
     const auto& P = pose_;
     const auto& C = lat_.rest;
-#pragma omp parallel for schedule(static)
-    for (int64_t i = 0; i < n; ++i) {
+    parallel_for(n, [&](int64_t i) {
       double e = 0.0;
       for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
         const int32_t j = lat_.adj[k];
@@ -154,7 +158,7 @@ class CpuBackend final : public Backend {
       e *= hs_.gamma_eff;
       if (hs_.anchored[i]) e += hs_.anchor_weight * (P.row(i) - C.row(i)).squaredNorm();
       node_energy_[i] = e;
-    }
+    }, 1024);
     double total = 0.0;
     for (int64_t i = 0; i < n; ++i) total += node_energy_[i];  // fixed order: deterministic
     total += (B_ * P - targets).squaredNorm();

@@ -17,7 +17,7 @@ double ms_since(Clock::time_point t0) {
 }
 
 std::unique_ptr<Backend> make_backend(const std::string& device, const Lattice& lat,
-                                      const RowMatrixX3d& V) {
+                                      const RowMatrixX3d& V, std::string& fallback) {
   if (device == "cpu") return make_cpu_backend(lat, V);
   if (device == "cuda") {
     std::string why;
@@ -28,9 +28,10 @@ std::unique_ptr<Backend> make_backend(const std::string& device, const Lattice& 
     if (cuda_available(nullptr)) {
       try {
         return make_cuda_backend(lat, V);
-      } catch (const OutOfMemory&) {
-        // Falls back to the CPU; `device()` says which one runs.
-      } catch (const DeviceError&) {
+      } catch (const OutOfMemory& e) {  // falls back to the CPU; device() says which one runs
+        fallback = std::string("device 'auto' fell back to the CPU: ") + e.what();
+      } catch (const DeviceError& e) {
+        fallback = std::string("device 'auto' fell back to the CPU: ") + e.what();
       }
     }
     return make_cpu_backend(lat, V);
@@ -61,7 +62,8 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options)
   t0 = Clock::now();
   binding();
   stats_.ms_binding = ms_since(t0);
-  backend_ = make_backend(options.device, lattice_, mesh_.vertices);
+  backend_ = make_backend(options.device, lattice_, mesh_.vertices, fallback_);
+  auto_device_ = options.device == "auto";
 }
 
 Deformer::~Deformer() = default;
@@ -144,7 +146,21 @@ void Deformer::prepare_handles() {
   for (int64_t i = 0; i < nn; ++i) hs.anchored[i] = has_handle[lattice_.component[i]] ? 0 : 1;
   hs.anchor_weight = 2.0 * hs.gamma_eff;
 
-  if (hs.m > 0) backend_->set_handles(hs);
+  if (hs.m > 0) {
+    try {
+      backend_->set_handles(hs);
+    } catch (const OutOfMemory& e) {
+      // device="auto": a GPU too small for this handle set hands over to the CPU, pose kept.
+      if (!auto_device_ || backend_->name() == "cpu") throw;
+      RowMatrixX3d pose;
+      backend_->get_pose(pose);
+      backend_.reset();  // free the device memory first
+      backend_ = make_cpu_backend(lattice_, mesh_.vertices);
+      backend_->set_pose(pose);
+      backend_->set_handles(hs);
+      fallback_ = std::string("device 'auto' fell back to the CPU: ") + e.what();
+    }
+  }
   stats_.ms_factorize = ms_since(t0);
 }
 

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "geometry.h"
+#include "parallel.h"
 
 namespace larap {
 namespace {
@@ -88,8 +89,7 @@ void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vecto
   const double h = g.h;
   const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
   const int64_t nt = static_cast<int64_t>(tris.size());
-#pragma omp parallel for schedule(dynamic, 4096)
-  for (int64_t t = 0; t < nt; ++t) {
+  parallel_for(nt, [&](int64_t t) {
     const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
     const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
     Eigen::Vector3i c0, c1;
@@ -101,14 +101,13 @@ void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vecto
       for (int y = c0.y(); y <= c1.y(); ++y)
         for (int x = c0.x(); x <= c1.x(); ++x) {
           const int64_t id = g.index(x, y, z);
-          if (g.marks[id] & kSurface) continue;
+          if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & kSurface) continue;
           const Eigen::Vector3d center = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
           if (geometry::triangle_box_overlap(center, half, a, b, c)) {
-#pragma omp atomic update
-            g.marks[id] |= kSurface;
+            __atomic_fetch_or(&g.marks[id], uint8_t(kSurface), __ATOMIC_RELAXED);
           }
         }
-  }
+  }, 2048);
 }
 
 // 6-connected flood fill from the border through cells no triangle touches.
@@ -183,10 +182,9 @@ std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
           cols[size_t(jc) * nb + jb].push_back(ta);
         }
     }
-#pragma omp parallel for schedule(dynamic, 64)
-    for (int64_t col = 0; col < int64_t(cols.size()); ++col) {
+    parallel_for(int64_t(cols.size()), [&](int64_t col) {
       auto& xs = cols[col];
-      if (xs.empty()) continue;
+      if (xs.empty()) return;
       std::sort(xs.begin(), xs.end());
       // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
       xs.erase(std::unique(xs.begin(), xs.end(),
@@ -205,7 +203,7 @@ std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
         const int64_t id = g.index(cell.x(), cell.y(), cell.z());
         votes[id] += uint8_t((below & 1) + ((total - below) & 1));
       }
-    }
+    }, 64);
   }
   return votes;
 }
@@ -222,11 +220,10 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
   mark_surface(g, mesh.vertices, tris);
   const int64_t n = mesh.num_vertices();
   std::vector<int64_t> vertex_cells(static_cast<size_t>(n));
-#pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < n; ++i) {
+  parallel_for(n, [&](int64_t i) {
     const Eigen::Vector3i c = g.cell_of(mesh.vertices.row(i).transpose());
     vertex_cells[i] = g.index(c.x(), c.y(), c.z());
-  }
+  }, 8192);
   for (int64_t id : vertex_cells) g.marks[id] |= kVertex;
 
   mark_outside(g);

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numbers
+import warnings
 
 import numpy as np
 
@@ -15,6 +16,18 @@ DEVICES = ("cpu", "cuda", "auto")
 def available_devices() -> list[str]:
     """Devices this build can use now: always "cpu", plus "cuda" when a usable GPU is present."""
     return list(_core.available_devices())
+
+
+def set_num_threads(n: int) -> None:
+    """Limit the CPU worker threads of every Deformer in this process (0 = all cores)."""
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral):
+        raise TypeError(f"the number of threads must be an integer, got {n!r}")
+    _core.set_num_threads(int(n))
+
+
+def num_threads() -> int:
+    """The CPU worker threads the engine may use now."""
+    return int(_core.num_threads())
 
 
 def _points(name: str, array, rows: int | None = None) -> np.ndarray:
@@ -91,6 +104,14 @@ class Deformer:
         self._n = V.shape[0]
         self._core = _core.Deformer(V, offsets, indices, n_cells, size, weights, gamma, device, limit)
         self._handles_set = False
+        self._warned = ""
+        self._warn_fallback()
+
+    def _warn_fallback(self):
+        reason = self._core.fallback_reason
+        if reason and reason != self._warned:
+            self._warned = reason
+            warnings.warn(reason, RuntimeWarning, stacklevel=3)
 
     # ------------------------------------------------------------------ posing
     def set_handles(self, indices) -> None:
@@ -103,6 +124,7 @@ class Deformer:
             raise ValueError(f"handle indices must be a 1-D array, shape is {a.shape}")
         self._core.set_handles(np.ascontiguousarray(a, dtype=np.int64))
         self._handles_set = True
+        self._warn_fallback()
 
     def solve(self, targets, iterations: int = 5, *, out=None) -> np.ndarray:
         """Deformed vertices (n, 3) for handle targets (len(handles), 3), same order as the

@@ -8,6 +8,8 @@
 
 #include <cstring>
 
+#include "parallel.h"
+
 namespace py = pybind11;
 using larap::RowMatrixX3d;
 
@@ -128,6 +130,7 @@ void bind_deformer(py::module_& m) {
       .def_property_readonly("cell_size", [](const larap::Deformer& d) { return d.lattice().h; })
       .def_property_readonly("diagonal", &larap::Deformer::diagonal)
       .def_property_readonly("device", &larap::Deformer::device)
+      .def_property_readonly("fallback_reason", &larap::Deformer::fallback_reason)
       .def_property_readonly("handles", [](const larap::Deformer& d) {
         return py::array_t<int64_t>(py::ssize_t(d.handles().size()), d.handles().data());
       })
@@ -163,4 +166,9 @@ void bind_deformer(py::module_& m) {
         return py::make_tuple(ids, w);
       });
   m.def("available_devices", &larap::available_devices);
+  m.def("set_num_threads", [](int n) {
+    if (n < 0) throw larap::InvalidInput("the number of threads must be >= 0 (0 = all cores), got " + std::to_string(n));
+    larap::set_num_threads(n);
+  }, py::arg("n"));
+  m.def("num_threads", &larap::num_threads);
 }

@@ -76,6 +76,8 @@ class Deformer {
   std::string device() const;
   const SolveStats& stats() const { return stats_; }
   const Binding& binding() const;
+  // Why device "auto" runs on the CPU although CUDA was tried (empty otherwise).
+  const std::string& fallback_reason() const { return fallback_; }
 
  private:
   template <typename T>
@@ -92,6 +94,8 @@ class Deformer {
   std::unique_ptr<Backend> backend_;
   std::vector<int64_t> handles_;
   bool handles_set_ = false;
+  bool auto_device_ = false;
+  std::string fallback_;
   SolveStats stats_;
 };
 

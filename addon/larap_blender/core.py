@@ -15,6 +15,7 @@ Conventions
 import contextlib
 import hashlib
 import time
+import uuid
 
 import bpy
 import numpy as np
@@ -217,19 +218,30 @@ def ensure_pose_key(obj, settings=None):
     """Basis (created from the mesh if there are no keys) and the pose key, relative to Basis."""
     s = settings or obj.larap
     me = obj.data
+    if not s.shape_key:
+        raise LarapError("The pose shape key has no name (LARAP > Settings > Shape Key)")
+    keys = me.shape_keys
+    kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
+    if kb is not None:
+        if kb == keys.reference_key:
+            raise LarapError("The pose shape key %r is the Basis key; choose another name" % s.shape_key)
+        if kb.name != s.owned_key_name:
+            if s.bound and not s.owned_key_name:
+                s.owned_key_name = kb.name  # bound by an add-on version that did not record ownership
+            else:
+                raise LarapError("%r already has a shape key %r that LARAP did not create; LARAP does not "
+                                 "overwrite it: rename that key or set another pose key name "
+                                 "(LARAP > Settings > Shape Key)" % (obj.name, s.shape_key))
+        return kb, False
     created_basis = False
     if me.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
         created_basis = True
     keys = me.shape_keys
-    basis = keys.reference_key
-    kb = keys.key_blocks.get(s.shape_key)
-    if kb is None or kb == basis:
-        if kb == basis:
-            raise LarapError("The pose shape key %r is the Basis key; choose another name" % s.shape_key)
-        kb = obj.shape_key_add(name=s.shape_key, from_mix=False)
-        kb.relative_key = basis
-        kb.value = 1.0
+    kb = obj.shape_key_add(name=s.shape_key, from_mix=False)
+    kb.relative_key = keys.reference_key
+    kb.value = 1.0
+    s.owned_key_name = kb.name
     return kb, created_basis
 
 
@@ -243,17 +255,144 @@ def write_pose(obj, co, settings=None):
 
 
 def _remove_pose_key(obj):
+    """Remove only what LARAP made: its pose key, and the Basis when bind created it and no other
+    key is left (the mesh keeps the Basis positions)."""
     s = obj.larap
     keys = obj.data.shape_keys
     if keys is None:
+        s.owned_key_name = ""
+        s.created_basis = False
         return
-    kb = keys.key_blocks.get(s.shape_key)
+    owned = s.owned_key_name or (s.shape_key if s.bound else "")
+    kb = keys.key_blocks.get(owned) if owned else None
     if kb is not None and kb != keys.reference_key:
         obj.shape_key_remove(kb)
     keys = obj.data.shape_keys
     if s.created_basis and keys is not None and len(keys.key_blocks) == 1:
+        me = obj.data
+        co = _get(keys.reference_key.data, "co", len(me.vertices), np.float32, 3)
         obj.shape_key_clear()
+        me.vertices.foreach_set("co", co.reshape(-1))
+    s.owned_key_name = ""
     s.created_basis = False
+
+
+# ----------------------------------------------------------------------------------------------
+# All or nothing: an operation that fails part-way leaves the object as it was
+
+_SETTING_FIELDS = ("bound", "bind_vertex_count", "bind_topology", "created_basis", "owned_key_name",
+                   "shape_key", "runtime_id")
+_KEY_FIELDS = ("slider_max", "slider_min", "value", "mute", "vertex_group", "interpolation")
+_POINT_FIELDS = ("co", "interpolation", "handle_left_type", "handle_right_type", "handle_left", "handle_right")
+
+
+def _snapshot(obj):
+    me = obj.data
+    s = obj.larap
+    snap = {"co": _get(me.vertices, "co", len(me.vertices), np.float32, 3),
+            "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
+            "handles": [(tuple(h.rest_matrix), h.has_rest) for h in s.handles],
+            "active_shape_key_index": obj.active_shape_key_index,
+            "show_only_shape_key": obj.show_only_shape_key,
+            "keys": None, "anim": None}
+    key0 = s.runtime_id
+    snap["runtime"] = (key0, _RUNTIMES.get(key0) if key0 else None)
+    keys = me.shape_keys
+    if keys is not None:
+        n = len(me.vertices)
+        snap["use_relative"] = keys.use_relative
+        snap["keys"] = [(kb.name, _get(kb.data, "co", n, np.float32, 3),
+                         kb.relative_key.name if kb.relative_key else "",
+                         {f: getattr(kb, f) for f in _KEY_FIELDS}) for kb in keys.key_blocks]
+        ad = keys.animation_data
+        if ad is not None and ad.action is not None:
+            snap["anim"] = (ad.action, {(fc.data_path, fc.array_index): [
+                {f: (tuple(getattr(kp, f)) if f in ("co", "handle_left", "handle_right") else getattr(kp, f))
+                 for f in _POINT_FIELDS} for kp in fc.keyframe_points] for fc in ad.action.fcurves})
+    return snap
+
+
+def _restore(obj, snap):
+    me = obj.data
+    s = obj.larap
+    keys = me.shape_keys
+    if snap["keys"] is None:
+        if keys is not None:
+            obj.shape_key_clear()
+    else:
+        names = [entry[0] for entry in snap["keys"]]
+        if keys is not None:
+            for kb in list(keys.key_blocks)[::-1]:
+                if kb.name not in names:
+                    obj.shape_key_remove(kb)
+        for name, co, _rel, _props in snap["keys"]:
+            keys = me.shape_keys
+            if keys is None or name not in keys.key_blocks:
+                obj.shape_key_add(name=name, from_mix=False)
+        keys = me.shape_keys
+        keys.use_relative = snap["use_relative"]
+        for name, co, rel, props in snap["keys"]:
+            kb = keys.key_blocks[name]
+            kb.data.foreach_set("co", co.reshape(-1))
+            kb.slider_min = -10.0
+            for f in _KEY_FIELDS:
+                setattr(kb, f, props[f])
+            if rel in keys.key_blocks:
+                kb.relative_key = keys.key_blocks[rel]
+        ad = keys.animation_data
+        if snap["anim"] is None:
+            if ad is not None:
+                ad.action = None
+        else:
+            action, curves = snap["anim"]
+            if ad is None:
+                ad = keys.animation_data_create()
+            ad.action = action
+            for fc in list(action.fcurves):
+                if (fc.data_path, fc.array_index) not in curves:
+                    action.fcurves.remove(fc)
+            for (path, index), points in curves.items():
+                fc = action.fcurves.find(path, index=index) or action.fcurves.new(path, index=index)
+                fc.keyframe_points.clear()
+                fc.keyframe_points.add(len(points))
+                for kp, p in zip(fc.keyframe_points, points):
+                    for f in _POINT_FIELDS:
+                        setattr(kp, f, p[f])
+                fc.update()
+    me.vertices.foreach_set("co", snap["co"].reshape(-1))
+    obj.show_only_shape_key = snap["show_only_shape_key"]
+    obj.active_shape_key_index = snap["active_shape_key_index"]
+    for f, v in snap["settings"].items():
+        setattr(s, f, v)
+    for h, (m, has) in zip(s.handles, snap["handles"]):
+        h.rest_matrix = m
+        h.has_rest = has
+    key0, rt0 = snap["runtime"]
+    for k in [k for k, rt in _RUNTIMES.items() if k == key0 or rt.pointer == obj.as_pointer()]:
+        _RUNTIMES.pop(k, None)
+    if rt0 is not None:
+        rt0.target_sig = None  # what the engine solved last was not kept
+        rt0.weights = ""
+        rt0.lattice_current = False
+        rt0.pose_version += 1
+        _RUNTIMES[key0] = rt0
+    me.update()
+
+
+@contextlib.contextmanager
+def preserve_on_error(obj):
+    """Snapshot the mesh positions, every shape key (data, settings, key animation), the LARAP
+    settings and the runtime; restore them if the block raises (then re-raise)."""
+    snap = _snapshot(obj)
+    try:
+        yield snap
+    except BaseException:
+        try:
+            _restore(obj, snap)
+        except Exception:  # never mask the original error
+            import traceback
+            traceback.print_exc()
+        raise
 
 
 # ----------------------------------------------------------------------------------------------
@@ -278,34 +417,110 @@ class Runtime:
         self.pose_version = 0
         self.last_error = ""
         self.warnings = []
+        self.validated = False  # False: the next ensure_runtime does a full validation
+        self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
 
 
+# Keyed by Object.larap.runtime_id (a uuid stored in the object, so renames keep the engine) and
+# validated against the object pointer (duplicates, which copy the id, get a new one).
 _RUNTIMES = {}
 _SUSPEND = [0]
 
 
-def runtime(obj):
-    """The cached runtime of an object, or None (does not build)."""
+def _runtime_key(obj):
     try:
-        return _RUNTIMES.get(obj.name_full)
-    except ReferenceError:
+        return obj.larap.runtime_id
+    except (ReferenceError, AttributeError):
+        return ""
+
+
+def runtime(obj):
+    """The cached runtime of an object, or None (does not build, writes nothing: safe in draw code)."""
+    try:
+        key = obj.larap.runtime_id
+        pointer = obj.as_pointer()
+    except (ReferenceError, AttributeError):
         return None
+    rt = _RUNTIMES.get(key) if key else None
+    if rt is not None and rt.pointer not in (0, pointer):
+        return None  # another object's (a duplicate that copied the id)
+    return rt
 
 
-def drop_runtime(obj_or_name=None):
-    if obj_or_name is None:
+def _claim_key(obj):
+    """The object's runtime id, assigning a new one to an object without one and to a duplicate
+    (a copy shares the id of its original while the original's runtime is alive)."""
+    s = obj.larap
+    key = s.runtime_id
+    if key:
+        rt = _RUNTIMES.get(key)
+        pointer = obj.as_pointer()
+        if rt is None or rt.pointer in (0, pointer):
+            return key
+        if not any(o.as_pointer() == rt.pointer and o.larap.runtime_id == key
+                   for o in bpy.data.objects if o.type == "MESH"):
+            rt.pointer = pointer  # the same object at a new address (undo re-created it): adopt
+            rt.validated = False
+            return key
+    s.runtime_id = uuid.uuid4().hex
+    return s.runtime_id
+
+
+def drop_runtime(obj_or_key=None):
+    if obj_or_key is None:
         _RUNTIMES.clear()
         return
-    name = obj_or_name if isinstance(obj_or_name, str) else obj_or_name.name_full
-    _RUNTIMES.pop(name, None)
+    key = obj_or_key if isinstance(obj_or_key, str) else _runtime_key(obj_or_key)
+    rt = _RUNTIMES.get(key)
+    if rt is not None and not isinstance(obj_or_key, str) and rt.pointer not in (0, obj_or_key.as_pointer()):
+        return  # a duplicate's: not this object's
+    _RUNTIMES.pop(key, None)
+
+
+def _bound_meshes():
+    for obj in bpy.data.objects:
+        try:
+            if obj.type == "MESH" and obj.larap.bound and obj.larap.runtime_id:
+                yield obj
+        except ReferenceError:
+            continue
 
 
 def prune_runtimes():
     """Forget runtimes whose object is gone or unbound (cheap; called from handlers)."""
-    for name in list(_RUNTIMES):
-        obj = bpy.data.objects.get(name)
-        if obj is None or obj.type != "MESH" or not obj.larap.bound:
-            _RUNTIMES.pop(name, None)
+    alive = {obj.larap.runtime_id for obj in _bound_meshes()}
+    for key in list(_RUNTIMES):
+        if key not in alive:
+            _RUNTIMES.pop(key, None)
+
+
+def after_undo():
+    """undo_post/redo_post: the mesh, its keys, the settings and the targets are what the undo step
+    stored; the engines must not carry on from the undone state. Each runtime is re-validated in
+    full at its next use (rest shape, topology, vertex groups), its warm start is forgotten, its
+    lattice is no longer drawn as current, the weights of the restored pose key are unknown (so
+    Bake/Apply re-solve), and the restored target matrices are recorded as the ones the restored
+    pose key was solved for (so Live does not overwrite what the undo restored)."""
+    prune_runtimes()
+    for obj in _bound_meshes():
+        rt = _RUNTIMES.get(obj.larap.runtime_id)
+        if rt is None:
+            continue
+        rt.pointer = obj.as_pointer()
+        rt.validated = False
+        rt.membership_sig = None
+        rt.lattice_current = False
+        rt.weights = ""
+        rt.pose_version += 1
+        if rt.deformer is not None:
+            try:
+                rt.deformer.reset()
+            except Exception:
+                rt.deformer = None
+        try:
+            rt.target_sig = target_signature(obj)
+        except Exception:
+            rt.target_sig = None
 
 
 def resolve_device(settings):
@@ -354,11 +569,12 @@ def ensure_runtime(obj, validate="full"):
     if counts[0] != s.bind_vertex_count:
         raise TopologyChanged("%r changed topology since bind (%d vertices, %d at bind); rebind it (LARAP > Bind)"
                               % (obj.name, counts[0], s.bind_vertex_count))
-    rt = _RUNTIMES.get(obj.name_full)
+    key = _claim_key(obj)
+    rt = _RUNTIMES.get(key)
     sig = _settings_sig(s)
     pointer = obj.as_pointer()
-    if (validate == "fast" and rt is not None and rt.deformer is not None and rt.pointer == pointer
-            and rt.counts == counts and rt.settings_sig == sig):
+    if (validate == "fast" and rt is not None and rt.deformer is not None and rt.validated
+            and rt.pointer == pointer and rt.counts == counts and rt.settings_sig == sig):
         return rt
     arrays = _topology_arrays(me)
     topo = topology_hash(me, arrays)
@@ -373,7 +589,8 @@ def ensure_runtime(obj, validate="full"):
         if rt is not None:
             new.pose_version = rt.pose_version + 1
         rt = new
-        _RUNTIMES[obj.name_full] = rt
+        _RUNTIMES[key] = rt
+    rt.validated = True
     rt.pointer = pointer
     rt.counts = counts
     rt.settings_sig = sig
@@ -457,7 +674,8 @@ def _gather(obj, rt, overrides=None):
             continue
         label = h.vertex_group or "(no group)"
         if h.vertex_group not in obj.vertex_groups:
-            warnings.append("handle %r skipped: vertex group not found" % label)
+            warnings.append("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
+                            "again in the handle's settings)" % label)
             continue
         idx = membership.get(h.vertex_group)
         if idx is None or len(idx) == 0:
@@ -552,6 +770,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
             rt.stats = stats
             engine_ms = float(stats.get("ms_total", 0.0))
     rt.weights = wname
+    rt.lattice_current = True
     if write:
         write_pose(obj, rt.out)
     rt.pose_version += 1
@@ -579,17 +798,24 @@ def current_pose(obj):
 
 def bind(obj):
     """Build the lattice + binding from the rest positions, record the targets' rest matrices and
-    write the (rest) pose key. Rebinding resets the pose: the current target transforms become rest."""
+    write the (rest) pose key. Rebinding resets the pose: the current target transforms become rest.
+    A failure leaves the object as it was (mesh, keys, settings, previous binding)."""
     check_object(obj)
+    with preserve_on_error(obj):
+        return _bind(obj)
+
+
+def _bind(obj):
     s = obj.larap
     me = obj.data
     _engine()
+    key = _claim_key(obj)
     arrays = _topology_arrays(me)
     rest = rest_positions(obj)
     rt = Runtime()
     rt.deformer = _build_deformer(obj, rest, triangles(me, arrays))
     rt.weights = s.weights_interactive
-    old = _RUNTIMES.get(obj.name_full)
+    old = _RUNTIMES.get(key)
     if old is not None:
         rt.pose_version = old.pose_version + 1
     rt.pointer = obj.as_pointer()
@@ -599,7 +825,8 @@ def bind(obj):
     rt.rest = rest
     rt.rest_hash = _array_hash(rest)
     rt.out = np.empty_like(rest)
-    _RUNTIMES[obj.name_full] = rt
+    rt.validated = True
+    _RUNTIMES[key] = rt
     s.bind_vertex_count = len(me.vertices)
     s.bind_topology = rt.topology
     for h in s.handles:
@@ -615,15 +842,13 @@ def bind(obj):
     if created and not had_keys:
         s.created_basis = True
     s.bound = True
-    try:
-        return solve(obj, weights="final", validate="fast")
-    except LarapError:
-        s.bound = False
-        drop_runtime(obj)
-        raise
+    return solve(obj, weights="final", validate="fast")
 
 
 def unbind(obj):
+    """Remove what bind made (the pose key LARAP created; the Basis if bind created it and no other
+    key is left) and forget the engine. Handles, their vertex groups and targets, other shape keys,
+    modifiers and every other object are kept."""
     check_object(obj)
     _remove_pose_key(obj)
     obj.larap.bound = False
@@ -716,6 +941,7 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
         empty.matrix_world = mw @ Matrix(fit.tolist()) @ mw.inverted_safe() @ rest_world
         target = empty
     h = s.handles.add()
+    h.created_target = target is not None and rest_matrix is not None
     h.vertex_group = vertex_group
     h.target = target
     h.subtarget = subtarget
@@ -737,10 +963,11 @@ def remove_handle(obj, index, *, delete_target=False, delete_group=False):
     if not (0 <= index < len(s.handles)):
         raise LarapError("No handle %d" % index)
     h = s.handles[index]
-    target, group = h.target, h.vertex_group
+    target, group, created = h.target, h.vertex_group, h.created_target
     s.handles.remove(index)
     s.active_handle = max(0, min(s.active_handle, len(s.handles) - 1))
-    if delete_target and target_alive(target) and target.name.startswith(TARGET_PREFIX):
+    # Only an Empty that LARAP created for this handle, and only when asked; never a user object.
+    if delete_target and created and target is not None and target_alive(target) and target.type == "EMPTY":
         if not any(o.target == target for o in s.handles):
             bpy.data.objects.remove(target)
     if delete_group and group in obj.vertex_groups and obj.mode != "EDIT":
@@ -750,19 +977,27 @@ def remove_handle(obj, index, *, delete_target=False, delete_group=False):
         rt.membership_sig = None
 
 
-def bake_shape_key(obj, name="LARAP_pose"):
-    """Store the current pose (see current_pose) as a new key (value 0) relative to Basis."""
-    co = current_pose(obj)
+def bake_shape_key(obj, name="LARAP_pose", *, overwrite=False):
+    """Store the current pose (see current_pose) as a new key (value 0) relative to Basis.
+    An existing key of that name is replaced only with ``overwrite``."""
+    check_object(obj, need_bound=True)
     keys = obj.data.shape_keys
-    if name == obj.larap.shape_key or (keys.reference_key and name == keys.reference_key.name):
+    if not name:
+        raise LarapError("Give the baked shape key a name")
+    if name == obj.larap.shape_key or (keys is not None and keys.reference_key and name == keys.reference_key.name):
         raise LarapError("Choose a name other than %r" % name)
-    kb = keys.key_blocks.get(name)
-    if kb is None:
-        kb = obj.shape_key_add(name=name, from_mix=False)
-    kb.data.foreach_set("co", co.reshape(-1))
-    kb.relative_key = keys.reference_key
-    kb.value = 0.0
-    obj.data.update_tag()
+    if keys is not None and name in keys.key_blocks and not overwrite:
+        raise LarapError("Shape key %r exists; choose another name or enable Overwrite" % name)
+    with preserve_on_error(obj):
+        co = current_pose(obj)
+        keys = obj.data.shape_keys
+        kb = keys.key_blocks.get(name)
+        if kb is None:
+            kb = obj.shape_key_add(name=name, from_mix=False)
+        kb.data.foreach_set("co", co.reshape(-1))
+        kb.relative_key = keys.reference_key
+        kb.value = 0.0
+        obj.data.update_tag()
     return kb
 
 
@@ -789,15 +1024,31 @@ def _set_linear(key, data_path):
             kp.interpolation = "LINEAR"
 
 
-def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_"):
+def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_", overwrite=False):
     """One solve per frame from the animated targets (warm-started), each pose a key named
     ``<prefix><frame:04d>`` keyed to 1 on its frame and 0 on the neighbouring baked frames.
-    The live pose key is set to 0 afterwards so it does not add to the baked keys."""
+    The live pose key is set to 0 afterwards so it does not add to the baked keys. Existing keys of
+    those names are replaced only with ``overwrite``; a failure part-way leaves the keys as they were."""
     check_object(obj, need_bound=True)
     if frame_end < frame_start:
         raise LarapError("Frame range is empty (%d..%d)" % (frame_start, frame_end))
     step = max(1, int(step))
     frames = list(range(int(frame_start), int(frame_end) + 1, step))
+    keys = obj.data.shape_keys
+    wanted = ["%s%04d" % (prefix, f) for f in frames]
+    if keys is not None:
+        taken = [nm for nm in wanted if nm in keys.key_blocks]
+        protected = {obj.larap.shape_key, keys.reference_key.name if keys.reference_key else ""}
+        if any(nm in protected for nm in wanted):
+            raise LarapError("The prefix %r would overwrite the Basis or pose key; choose another" % prefix)
+        if taken and not overwrite:
+            raise LarapError("Shape keys %s exist; choose another prefix or enable Overwrite"
+                             % ", ".join(repr(nm) for nm in taken[:3]) + (" ..." if len(taken) > 3 else ""))
+    with preserve_on_error(obj):
+        return _bake_animation(obj, scene, frames, step, prefix)
+
+
+def _bake_animation(obj, scene, frames, step, prefix):
     old_frame, old_sub = scene.frame_current, scene.frame_subframe
     names = []
     with suspend_live():
@@ -837,7 +1088,14 @@ def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_
 
 def apply_pose(obj):
     """Write the current pose (see current_pose) into the mesh (Basis and every other key move
-    along, keeping their offsets), remove the pose key and unbind."""
+    along, keeping their offsets), remove the pose key and unbind. Destructive: the operator asks
+    first. A failure leaves the object as it was."""
+    check_object(obj, need_bound=True)
+    with preserve_on_error(obj):
+        return _apply_pose(obj)
+
+
+def _apply_pose(obj):
     pose = current_pose(obj)
     rt = runtime(obj)
     delta = pose - rt.rest
@@ -893,7 +1151,8 @@ def live_update(scene, updated_names=None):
                     type(exc).__name__, exc)
                 rt = runtime(obj)
                 if rt is None:
-                    rt = _RUNTIMES.setdefault(obj.name_full, Runtime())
+                    rt = _RUNTIMES.setdefault(_claim_key(obj), Runtime())
+                    rt.pointer = obj.as_pointer()
                 if rt.last_error != msg:
                     print("LARAP live update of %r: %s" % (obj.name, msg))
                     if not isinstance(exc, LarapError):
@@ -1061,5 +1320,6 @@ class PoseSession:
         rt = runtime(obj)
         if rt is not None:
             rt.target_sig = None
+            rt.lattice_current = False
             rt.pose_version += 1
         self.active = False

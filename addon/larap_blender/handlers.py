@@ -43,10 +43,19 @@ def larap_load_post(*_args):
     core.drop_runtime()
 
 
+@persistent
+def larap_undo_post(*_args):
+    """Undo/redo replaced the mesh, keys, settings and targets with a stored state: the cached
+    engines re-validate, forget their warm start, and Live does not overwrite the restored pose."""
+    core.after_undo()
+
+
 _HANDLERS = (
     ("depsgraph_update_post", larap_depsgraph_update_post),
     ("frame_change_post", larap_frame_change_post),
     ("load_post", larap_load_post),
+    ("undo_post", larap_undo_post),
+    ("redo_post", larap_undo_post),
 )
 
 

@@ -142,13 +142,15 @@ class LARAP_OT_bake_shape_key(_LarapOp, bpy.types.Operator):
     bl_label = "LARAP Bake Shape Key"
 
     name: StringProperty(name="Name", default="LARAP_pose")
+    overwrite: BoolProperty(name="Overwrite", default=False,
+                            description="Replace an existing shape key of that name (otherwise it is an error)")
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)
 
     def run(self, context, obj):
         _leave_edit_mode(self, context, obj)
-        kb = core.bake_shape_key(obj, self.name)
+        kb = core.bake_shape_key(obj, self.name, overwrite=self.overwrite)
         self.report({"INFO"}, "Baked pose into shape key %r" % kb.name)
 
 
@@ -161,6 +163,8 @@ class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
     frame_end: IntProperty(name="End", default=-1, description="Last frame (-1: scene end)")
     step: IntProperty(name="Step", default=1, min=1)
     prefix: StringProperty(name="Prefix", default="LARAP_")
+    overwrite: BoolProperty(name="Overwrite", default=False,
+                            description="Replace existing shape keys of those names (otherwise it is an error)")
 
     def invoke(self, context, event):
         if self.frame_start < 0:
@@ -174,7 +178,8 @@ class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
         scene = context.scene
         start = self.frame_start if self.frame_start >= 0 else scene.frame_start
         end = self.frame_end if self.frame_end >= 0 else scene.frame_end
-        names = core.bake_animation(obj, scene, start, end, step=self.step, prefix=self.prefix)
+        names = core.bake_animation(obj, scene, start, end, step=self.step, prefix=self.prefix,
+                                    overwrite=self.overwrite)
         self.report({"INFO"}, "Baked %d frames into shape keys %s..%s (the %r key is set to 0)"
                     % (len(names), names[0] if names else "", names[-1] if names else "", obj.larap.shape_key))
 
@@ -185,6 +190,7 @@ class LARAP_OT_apply(_LarapOp, bpy.types.Operator):
     bl_label = "LARAP Apply Pose"
 
     def invoke(self, context, event):
+        # Destructive (Basis changes): always ask. Only a script calling it with EXEC skips this.
         return context.window_manager.invoke_confirm(self, event)
 
     def run(self, context, obj):

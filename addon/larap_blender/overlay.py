@@ -5,8 +5,9 @@ import numpy as np
 
 from . import core
 
-_DRAW_HANDLE = None
-_CACHE = {}  # object name -> (pose_version, lattice batch, handle batch)
+# Kept across importlib.reload (F8 / re-enable), so a reload can never orphan a registered callback.
+_DRAW_HANDLE = globals().get("_DRAW_HANDLE")
+_CACHE = {}  # runtime id -> (pose_version, lattice batch, handle batch)
 LATTICE_COLOR = (0.2, 0.75, 1.0, 0.55)
 HANDLE_COLOR = (1.0, 0.45, 0.05, 1.0)
 
@@ -23,11 +24,14 @@ def _shader():
 
 def _batches(obj, rt, shader):
     from gpu_extras.batch import batch_for_shader
-    cached = _CACHE.get(obj.name_full)
+    key = obj.larap.runtime_id
+    cached = _CACHE.get(key)
     if cached is not None and cached[0] == rt.pose_version:
         return cached[1], cached[2]
     lattice = handles = None
     try:
+        if not rt.lattice_current:  # e.g. after an undo or a cancelled drag: no stale lattice
+            raise LookupError
         d = rt.deformer
         nodes = np.asarray(d.lattice_deformed(), dtype=np.float32)
         edges = np.asarray(d.lattice_edges(), dtype=np.int64)
@@ -38,7 +42,7 @@ def _batches(obj, rt, shader):
     pts, _owner = core.handle_points(obj, refresh=False)
     if len(pts):
         handles = batch_for_shader(shader, "POINTS", {"pos": pts.astype(np.float32)})
-    _CACHE[obj.name_full] = (rt.pose_version, lattice, handles)
+    _CACHE[key] = (rt.pose_version, lattice, handles)
     return lattice, handles
 
 
@@ -47,13 +51,14 @@ def draw():
     shader = _shader()
     if shader is None:
         return
-    for name, rt in list(core._RUNTIMES.items()):
-        obj = bpy.data.objects.get(name)
+    for obj in list(getattr(bpy.context, "visible_objects", None) or ()):
         try:
-            if (obj is None or rt.deformer is None or obj.type != "MESH" or not obj.larap.bound
-                    or not obj.larap.show_overlay or not obj.visible_get()):
+            if obj.type != "MESH" or not obj.larap.bound or not obj.larap.show_overlay:
                 continue
-        except (ReferenceError, RuntimeError):
+            rt = core.runtime(obj)  # by the stable runtime id: follows renames
+            if rt is None or rt.deformer is None:
+                continue
+        except (ReferenceError, RuntimeError, AttributeError):
             continue
         lattice, handles = _batches(obj, rt, shader)
         gpu.state.blend_set("ALPHA")
@@ -75,8 +80,9 @@ def draw():
 
 
 def register():
+    """Also in background mode (the callback then never runs), so tests see the same lifecycle."""
     global _DRAW_HANDLE
-    if bpy.app.background or _DRAW_HANDLE is not None:
+    if _DRAW_HANDLE is not None:
         return
     _DRAW_HANDLE = bpy.types.SpaceView3D.draw_handler_add(draw, (), "WINDOW", "POST_VIEW")
 
@@ -84,7 +90,10 @@ def register():
 def unregister():
     global _DRAW_HANDLE
     if _DRAW_HANDLE is not None:
-        bpy.types.SpaceView3D.draw_handler_remove(_DRAW_HANDLE, "WINDOW")
+        try:
+            bpy.types.SpaceView3D.draw_handler_remove(_DRAW_HANDLE, "WINDOW")
+        except ValueError:  # already removed
+            pass
         _DRAW_HANDLE = None
     _CACHE.clear()
 

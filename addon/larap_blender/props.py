@@ -42,6 +42,8 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
     has_rest: BoolProperty(name="Has Rest", default=False,
                            description="The rest matrix was recorded (bind or handle creation)")
     enabled: BoolProperty(name="Enabled", default=True, description="Use this handle when solving")
+    created_target: BoolProperty(default=False, description="LARAP created the target Empty (only such an Empty "
+                                 "is ever deleted by LARAP, and only when asked)")
 
 
 class LARAP_PG_settings(bpy.types.PropertyGroup):
@@ -77,6 +79,10 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
     bind_vertex_count: IntProperty(default=0)
     bind_topology: StringProperty(default="", description="Hash of the face topology at bind")
     created_basis: BoolProperty(default=False, description="Bind created the Basis shape key")
+    owned_key_name: StringProperty(default="", description="Name of the pose shape key LARAP created (LARAP never "
+                                   "writes or removes a key it did not create)")
+    runtime_id: StringProperty(default="", description="Identifies the object's runtime engine cache (stable "
+                               "across renames, undo and reloads)")
 
 
 class LARAP_AddonPreferences(bpy.types.AddonPreferences):

@@ -120,7 +120,8 @@ class VIEW3D_PT_larap(bpy.types.Panel):
             if h.target is not None and h.target.type == "ARMATURE":
                 hb.prop_search(h, "subtarget", h.target.data, "bones", text="Bone")
             if h.vertex_group and h.vertex_group not in obj.vertex_groups:
-                hb.label(text="Vertex group missing: handle skipped", icon="ERROR")
+                hb.label(text="Vertex group %r missing (renamed or deleted?): pick it again" % h.vertex_group,
+                         icon="ERROR")
             if h.target is not None and not core.target_alive(h.target):
                 hb.label(text="Target not in any scene: handle skipped", icon="ERROR")
             if not h.has_rest:

@@ -31,22 +31,71 @@ def test_object_menu_lists_every_operator(addon):
     assert {op for op, _, _ in ui.OPERATORS} == {"larap." + name for name in OPERATORS}
 
 
+OUR_HANDLERS = {("depsgraph_update_post", "larap_depsgraph_update_post"),
+                ("frame_change_post", "larap_frame_change_post"), ("load_post", "larap_load_post"),
+                ("undo_post", "larap_undo_post"), ("redo_post", "larap_undo_post")}
+
+
 def test_disable_removes_handlers_and_reenable_works(addon):
+    assert sorted(_our_handlers()) == sorted(OUR_HANDLERS)
     disable_addon()
     assert _our_handlers() == []
     assert not hasattr(bpy.types.Object, "larap")
     assert not hasattr(bpy.types, "VIEW3D_PT_larap")
     enable_addon()
-    assert len(_our_handlers()) == 3
+    assert sorted(_our_handlers()) == sorted(OUR_HANDLERS)
     disable_addon()
     enable_addon()
-    assert len(_our_handlers()) == 3, "handlers duplicated by re-enabling"
+    assert sorted(_our_handlers()) == sorted(OUR_HANDLERS), "handlers duplicated by re-enabling"
 
 
-def test_overlay_not_registered_in_background(addon):
+def test_overlay_draw_handler_lifecycle(addon):
+    """The 3D View draw callback is added once on enable and really removed on disable (removing a
+    removed callback raises ValueError in Blender, which proves it is gone). Registered in background
+    mode too (it never runs there), so this is tested headless."""
     from larap_blender import overlay
-    assert bpy.app.background
+    first = overlay._DRAW_HANDLE
+    assert overlay.is_registered() and first is not None
+    overlay.register()  # idempotent
+    assert overlay._DRAW_HANDLE is first
+    disable_addon()
     assert not overlay.is_registered()
+    with pytest.raises(ValueError):
+        bpy.types.SpaceView3D.draw_handler_remove(first, "WINDOW")
+    enable_addon()
+    from larap_blender import overlay as overlay2
+    second = overlay2._DRAW_HANDLE
+    assert second is not None and second is not first
+    disable_addon()
+    with pytest.raises(ValueError):
+        bpy.types.SpaceView3D.draw_handler_remove(second, "WINDOW")
+    enable_addon()
+
+
+def test_overlay_draw_callback_headless(core):
+    """The callback itself, with gpu calls stubbed (no GPU context in background mode): it finds a
+    renamed object's engine and skips a stale lattice after an undo-like invalidation."""
+    from conftest import bar_with_handles
+    from larap_blender import overlay
+    obj, *_ = bar_with_handles(core)
+    obj.larap.show_overlay = True
+    obj.name = "Renamed"
+    rt = core.runtime(obj)
+    assert rt is not None and rt.lattice_current
+    import gpu_extras.batch as gb
+    made = []
+    real = gb.batch_for_shader
+    gb.batch_for_shader = lambda shader, kind, data: made.append((kind, len(data["pos"]))) or kind
+    try:
+        overlay._CACHE.clear()
+        lattice, handles = overlay._batches(obj, rt, None)
+        assert lattice == "LINES" and handles == "POINTS"
+        core.after_undo()  # what undo_post does
+        overlay._CACHE.clear()
+        lattice, handles = overlay._batches(obj, core.runtime(obj), None)
+        assert lattice is None and handles == "POINTS"  # the engine's lattice is no longer the shown pose
+    finally:
+        gb.batch_for_shader = real
 
 
 def test_non_mesh_object_reports_error(addon):

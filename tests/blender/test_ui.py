@@ -68,7 +68,7 @@ def test_panel_bound_shows_stats_and_problems(core):
     draw(bpy.types.VIEW3D_PT_larap_settings)
     obj.vertex_groups.remove(obj.vertex_groups["Right"])
     obj.larap.active_handle = 1
-    assert "Vertex group missing: handle skipped" in draw(bpy.types.VIEW3D_PT_larap).labels()
+    assert "Vertex group 'Right' missing (renamed or deleted?): pick it again" in draw(bpy.types.VIEW3D_PT_larap).labels()
     bpy.data.objects.remove(targets[0])
     obj.larap.active_handle = 0
     draw(bpy.types.VIEW3D_PT_larap)

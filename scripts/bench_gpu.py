@@ -224,8 +224,20 @@ def run_config(faces, nodes, reps=5, solver_sweep=False, cpu_iters=30):
             "transfer_pipeline_ms_f32": float(np.median([r["pipeline_ms"] for r in tr32])),
             "transfer_pipeline_ms_f64": float(np.median([r["pipeline_ms"] for r in tr64])),
         }
-    set_env(LARAP_CUDA_PROFILE=None)
+    # the previous transfer kernels (3 scalar loads / stores per vertex) for comparison
+    set_env(LARAP_CUDA_PROFILE=prof, LARAP_CUDA_TRANSFER="scalar")
     dg.weights = "trilinear"
+    dg.set_handles(h)
+    gpu_warmup(dg, T1, out32, 0.2)
+    read_profile(prof)
+    for _ in range(3):
+        dg.solve(T2, 10, out=out32)
+        dg.solve(T2, 10, out=np.empty(V.shape, np.float64))
+    recs = read_profile(prof)
+    res["gpu_transfer_scalar"] = {
+        "transfer_kernel_ms_f32": float(np.median([r["kernel_ms"] for r in recs if r["what"] == "transfer" and r["elem_size"] == 4])),
+        "transfer_kernel_ms_f64": float(np.median([r["kernel_ms"] for r in recs if r["what"] == "transfer" and r["elem_size"] == 8]))}
+    set_env(LARAP_CUDA_PROFILE=None, LARAP_CUDA_TRANSFER=None)
     dg.set_handles(h)
 
     if solver_sweep:
@@ -251,14 +263,30 @@ def run_config(faces, nodes, reps=5, solver_sweep=False, cpu_iters=30):
                           "ms_per_flipflop": per, "ms_to_quality": None if k is None else k * per,
                           "E100_over_Eref": E[-1] / E_ref})
         set_env(LARAP_CUDA_SOLVER=None, LARAP_CUDA_INNER=None, LARAP_CUDA_MG_COARSE=None)
-        # graph vs plain launches for the default solver
-        set_env(LARAP_CUDA_GRAPH=0)
+        # default solver: fused cooperative kernel (default) vs one graph per flip-flop vs plain
+        for key, env in (("gpu_ms_per_iter_unfused_graph", dict(LARAP_CUDA_FUSED=0)),
+                         ("gpu_ms_per_iter_plain_launches", dict(LARAP_CUDA_FUSED=0, LARAP_CUDA_GRAPH=0))):
+            set_env(**env)
+            dg.set_handles(h)
+            gpu_warmup(dg, T1, out32, 0.2)
+            dg.reset()
+            dg.solve(T1, 30, out=out32)
+            dg.solve(T2, 100, out=out32)
+            res[key] = dg.stats["ms_solve"] / 100
+        set_env(LARAP_CUDA_GRAPH=None, LARAP_CUDA_FUSED=None)
+        coop = {}
+        for b in os.environ.get("BENCH_COOP", "").split(","):
+            if not b:
+                continue
+            set_env(LARAP_CUDA_COOP_BLOCKS=b)
+            dg.set_handles(h)
+            dg.reset()
+            dg.solve(T1, 30, out=out32)
+            dg.solve(T2, 100, out=out32)
+            coop[b] = dg.stats["ms_solve"] / 100
+        set_env(LARAP_CUDA_COOP_BLOCKS=None)
         dg.set_handles(h)
-        dg.reset()
-        dg.solve(T1, 30, out=out32)
-        dg.solve(T2, 100, out=out32)
-        res["gpu_ms_per_iter_plain_launches"] = dg.stats["ms_solve"] / 100
-        set_env(LARAP_CUDA_GRAPH=None)
+        res["gpu_ms_per_iter_by_coop_blocks"] = coop
         res["solver_sweep"] = sweep
     return res
 
@@ -306,6 +334,17 @@ def main():
                   f"{sw['ms_per_flipflop'] * 1e3:.1f} us each, to quality "
                   f"{'-' if sw['ms_to_quality'] is None else '%.3f ms' % sw['ms_to_quality']}, "
                   f"E100/Eref {sw['E100_over_Eref']:.5f}, set_handles {sw['set_handles_s']:.3f}s", flush=True)
+        ts = r["gpu_transfer_scalar"]
+        print(f"    transfer kernel staged/scalar: f32 {p['transfer_kernel_ms_f32'] * 1e3:.1f} / "
+              f"{ts['transfer_kernel_ms_f32'] * 1e3:.1f} us, f64 {p['transfer_kernel_ms_f64'] * 1e3:.1f} / "
+              f"{ts['transfer_kernel_ms_f64'] * 1e3:.1f} us", flush=True)
+        if r.get("gpu_ms_per_iter_by_coop_blocks"):
+            print("    fused per flip-flop by blocks: " + ", ".join(
+                f"{b}: {v * 1e3:.1f} us" for b, v in r["gpu_ms_per_iter_by_coop_blocks"].items()), flush=True)
+        if "gpu_ms_per_iter_unfused_graph" in r:
+            print(f"    default per flip-flop: fused {r['gpu_ms_per_iter_graph'] * 1e3:.1f} us, unfused graph "
+                  f"{r['gpu_ms_per_iter_unfused_graph'] * 1e3:.1f} us, plain launches "
+                  f"{r['gpu_ms_per_iter_plain_launches'] * 1e3:.1f} us", flush=True)
     print(json.dumps(info))
 
 

@@ -1,6 +1,10 @@
 // Kernels of the CUDA backend (see kernels.h and docs/cuda.md).
+#include <cooperative_groups.h>
+
 #include "kernels.h"
 #include "rotation.cuh"
+
+namespace cg = cooperative_groups;
 
 namespace larap {
 namespace cuda {
@@ -61,61 +65,67 @@ __device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
 }
 
 // ---------------------------------------------------------------- rotations (+ energy)
+// Node i: new rotation (write_rot) and, when want_e, its energy term with the old rotations.
+__device__ __forceinline__ double rot_node(const System& s, int i, bool write_rot, bool want_e) {
+  double e = 0.0;
+  const float4 pi = s.x[i], ci = s.rest[i];
+  float S[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+  float Ro[9];
+  if (want_e)
+#pragma unroll
+    for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.n + i];
+  float ei = 0.f;
+  int js[6];
+#pragma unroll
+  for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
+#pragma unroll
+  for (int d = 0; d < 6; ++d) {
+    const int j = js[d];  // missing neighbour: i itself, dp = dc = 0
+    const float4 dp = pi - s.x[j], dc = ci - s.rest[j];
+    S[0] += dp.x * dc.x; S[1] += dp.x * dc.y; S[2] += dp.x * dc.z;
+    S[3] += dp.y * dc.x; S[4] += dp.y * dc.y; S[5] += dp.y * dc.z;
+    S[6] += dp.z * dc.x; S[7] += dp.z * dc.y; S[8] += dp.z * dc.z;
+    if (want_e) {
+      const float rx = dp.x - (Ro[0] * dc.x + Ro[1] * dc.y + Ro[2] * dc.z);
+      const float ry = dp.y - (Ro[3] * dc.x + Ro[4] * dc.y + Ro[5] * dc.z);
+      const float rz = dp.z - (Ro[6] * dc.x + Ro[7] * dc.y + Ro[8] * dc.z);
+      ei += rx * rx + ry * ry + rz * rz;
+    }
+  }
+  if (want_e) {
+    e = double(s.g) * double(ei);
+    if (s.anchored[i]) {
+      const float4 d = pi - ci;
+      e += double(s.a) * double(dot3(d, d));
+    }
+  }
+  if (write_rot) {
+    float R[9];
+    cuda_math::best_rotation_f(S, R);
+#pragma unroll
+    for (int k = 0; k < 9; ++k) s.rot[k * s.n + i] = R[k];
+  }
+  return e;
+}
+
+// Handle t's term |B_t x - t_t|^2.
+__device__ __forceinline__ double handle_energy(const System& s, int t) {
+  float4 acc = f4(0, 0, 0);
+  for (int k = 0; k < s.stencil; ++k) {
+    const int id = s.b_ids[t * s.stencil + k];
+    acc = acc + s.b_w[t * s.stencil + k] * s.x[id];
+  }
+  const float4 d = acc - s.targets[t];
+  return double(dot3(d, d));
+}
+
 __global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
   const int t = blockIdx.x * blockDim.x + threadIdx.x;
   int e_slot = slot;
   if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
   double e = 0.0;
-  if (t < s.n) {
-    const int i = t;
-    const float4 pi = s.x[i], ci = s.rest[i];
-    float S[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
-    float Ro[9];
-    const bool want_e = e_slot >= 0;
-    if (want_e)
-#pragma unroll
-      for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.n + i];
-    float ei = 0.f;
-    int js[6];
-#pragma unroll
-    for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
-#pragma unroll
-    for (int d = 0; d < 6; ++d) {
-      const int j = js[d];  // missing neighbour: i itself, dp = dc = 0
-      const float4 dp = pi - s.x[j], dc = ci - s.rest[j];
-      S[0] += dp.x * dc.x; S[1] += dp.x * dc.y; S[2] += dp.x * dc.z;
-      S[3] += dp.y * dc.x; S[4] += dp.y * dc.y; S[5] += dp.y * dc.z;
-      S[6] += dp.z * dc.x; S[7] += dp.z * dc.y; S[8] += dp.z * dc.z;
-      if (want_e) {
-        const float rx = dp.x - (Ro[0] * dc.x + Ro[1] * dc.y + Ro[2] * dc.z);
-        const float ry = dp.y - (Ro[3] * dc.x + Ro[4] * dc.y + Ro[5] * dc.z);
-        const float rz = dp.z - (Ro[6] * dc.x + Ro[7] * dc.y + Ro[8] * dc.z);
-        ei += rx * rx + ry * ry + rz * rz;
-      }
-    }
-    if (want_e) {
-      e = double(s.g) * double(ei);
-      if (s.anchored[i]) {
-        const float4 d = pi - ci;
-        e += double(s.a) * double(dot3(d, d));
-      }
-    }
-    if (write_rot) {
-      float R[9];
-      cuda_math::best_rotation_f(S, R);
-#pragma unroll
-      for (int k = 0; k < 9; ++k) s.rot[k * s.n + i] = R[k];
-    }
-  }
-  if (e_slot >= 0 && t < s.m) {
-    float4 acc = f4(0, 0, 0);
-    for (int k = 0; k < s.stencil; ++k) {
-      const int id = s.b_ids[t * s.stencil + k];
-      acc = acc + s.b_w[t * s.stencil + k] * s.x[id];
-    }
-    const float4 d = acc - s.targets[t];
-    e += double(dot3(d, d));
-  }
+  if (t < s.n) e += rot_node(s, t, write_rot, e_slot >= 0);
+  if (e_slot >= 0 && t < s.m) e += handle_energy(s, t);
   if (e_slot >= 0) {
     double v[1] = {e};
     block_add<1>(v, s.energy + e_slot);
@@ -288,10 +298,7 @@ __device__ __forceinline__ float4 mg_beta(const System& s, int k) {
 
 // A_k: x += alpha_{k-1} p_{k-1}, r_k = r_{k-1} - alpha_{k-1} q (k > 0); then the pre-smoothed
 // residual r1 = r_k - A (omega D^-1 r_k) restricted into rc[k] (atomics). final: update only.
-__global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool final) {
-  const int i = blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= s.n) return;
-  const float4 al = k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0);
+__device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool final, float4 al) {
   const float4* rin = s.r[(k + 1) & 1];  // r_{k-1} (k > 0)
   float4 rn;
   if (k > 0) {
@@ -314,10 +321,14 @@ __global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool fina
   atomicAdd(&dst->z, r1.z);
 }
 
-// B_k: zc = Ac^-1 rc[k] (dense, one warp per row).
-__global__ void __launch_bounds__(kBlock) mg_coarse_kernel(System s, int k) {
-  const int row = (blockIdx.x * blockDim.x + threadIdx.x) >> 5, lane = threadIdx.x & 31;
-  if (row >= s.nc) return;
+__global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool final) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= s.n) return;
+  mg_a_node(s, i, k, final, k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0));
+}
+
+// Coarse row `row` of zc = Ac^-1 rc[k], by one warp (all 32 lanes call it).
+__device__ __forceinline__ void coarse_row(const System& s, int row, int lane, int k) {
   const float* a = s.ainv + int64_t(row) * s.nc;
   const float4* rc = s.rc + int64_t(k) * s.nc;
   float ax = 0.f, ay = 0.f, az = 0.f;
@@ -334,42 +345,119 @@ __global__ void __launch_bounds__(kBlock) mg_coarse_kernel(System s, int k) {
   if (lane == 0) s.zc[row] = f4(ax, ay, az);
 }
 
-// C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); dots (r, z).
+// B_k: zc = Ac^-1 rc[k] (dense, one warp per row).
+__global__ void __launch_bounds__(kBlock) mg_coarse_kernel(System s, int k) {
+  const int row = (blockIdx.x * blockDim.x + threadIdx.x) >> 5, lane = threadIdx.x & 31;
+  if (row >= s.nc) return;
+  coarse_row(s, row, lane, k);
+}
+
+// C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); adds (r, z) into v.
+__device__ __forceinline__ void mg_c_node(const System& s, int i, int k, double (&v)[3]) {
+  const float4* r = s.r[k & 1];
+  const float4 ri = r[i];
+  const float om = s.omega;
+  const float* minv = s.minv;
+  const int* agg = s.agg;
+  const float4* zc = s.zc;
+  const float4 az = spmv_row(s, i, [&](int j) { return (om * __ldg(minv + j)) * r[j] + zc[__ldg(agg + j)]; });
+  const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
+  const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
+  s.z[i] = zi;
+  v[0] += ri.x * zi.x; v[1] += ri.y * zi.y; v[2] += ri.z * zi.z;
+}
+
 __global__ void __launch_bounds__(kBlock) mg_c_kernel(System s, int k) {
   const int i = blockIdx.x * blockDim.x + threadIdx.x;
   double v[3] = {0, 0, 0};
-  if (i < s.n) {
-    const float4* r = s.r[k & 1];
-    const float4 ri = r[i];
-    const float om = s.omega;
-    const float* minv = s.minv;
-    const int* agg = s.agg;
-    const float4* zc = s.zc;
-    const float4 az = spmv_row(s, i, [&](int j) { return (om * __ldg(minv + j)) * r[j] + zc[__ldg(agg + j)]; });
-    const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
-    const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
-    s.z[i] = zi;
-    v[0] = ri.x * zi.x; v[1] = ri.y * zi.y; v[2] = ri.z * zi.z;
-  }
+  if (i < s.n) mg_c_node(s, i, k, v);
   block_add<3>(v, s.dots + 6 * k);
 }
 
-// D_k: p_k = z + beta p_{k-1}; q = A p_k; dots (p, q).
+// D_k: p_k = z + beta p_{k-1}; q = A p_k; adds (p, q) into v.
+__device__ __forceinline__ void mg_d_node(const System& s, int i, int k, float4 be, double (&v)[3]) {
+  const float4* pold = s.pb[(k + 1) & 1];
+  const float4 pi = k > 0 ? s.z[i] + cmul(be, pold[i]) : s.z[i];
+  const float4* z = s.z;
+  const float4 aq = k > 0 ? spmv_row(s, i, [&](int j) { return z[j] + cmul(be, pold[j]); })
+                          : spmv_row(s, i, [&](int j) { return z[j]; });
+  s.pb[k & 1][i] = pi;
+  s.q[i] = aq;
+  v[0] += pi.x * aq.x; v[1] += pi.y * aq.y; v[2] += pi.z * aq.z;
+}
+
 __global__ void __launch_bounds__(kBlock) mg_d_kernel(System s, int k) {
   const int i = blockIdx.x * blockDim.x + threadIdx.x;
   double v[3] = {0, 0, 0};
-  if (i < s.n) {
-    const float4 be = k > 0 ? mg_beta(s, k) : f4(0, 0, 0);
-    const float4* pold = s.pb[(k + 1) & 1];
-    const float4 pi = k > 0 ? s.z[i] + cmul(be, pold[i]) : s.z[i];
-    const float4* z = s.z;
-    const float4 aq = k > 0 ? spmv_row(s, i, [&](int j) { return z[j] + cmul(be, pold[j]); })
-                            : spmv_row(s, i, [&](int j) { return z[j]; });
-    s.pb[k & 1][i] = pi;
-    s.q[i] = aq;
-    v[0] = pi.x * aq.x; v[1] = pi.y * aq.y; v[2] = pi.z * aq.z;
-  }
+  if (i < s.n) mg_d_node(s, i, k, k > 0 ? mg_beta(s, k) : f4(0, 0, 0), v);
   block_add<3>(v, s.dots + 6 * k + 3);
+}
+
+// ---------------------------------------------------------------- fused two-level flip-flops
+// One cooperative launch runs `iterations` whole flip-flops (rotations + energy, rhs, `inner`
+// two-level PCG iterations, final update): the phases of the separate kernels above, each a
+// grid-stride loop, separated by grid-wide barriers instead of kernel boundaries.
+__global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int iterations) {
+  cg::grid_group grid = cg::this_grid();
+  const int tid = blockIdx.x * blockDim.x + threadIdx.x;
+  const int stride = gridDim.x * blockDim.x;
+  const int nrot = s.n > s.m ? s.n : s.m;
+  for (int it = 0; it < iterations; ++it) {
+    {  // rotations + energy of the previous flip-flop
+      const bool want_e = it > 0;
+      double e = 0.0;
+      for (int t = tid; t < nrot; t += stride) {
+        if (t < s.n) e += rot_node(s, t, true, want_e);
+        if (want_e && t < s.m) e += handle_energy(s, t);
+      }
+      if (want_e) {
+        double v[1] = {e};
+        block_add<1>(v, s.energy + it - 1);
+      }
+    }
+    grid.sync();
+    // rhs, r0 = b - A x; fresh scalars and restriction slots
+    if (blockIdx.x == 0) {
+      for (int k = threadIdx.x; k < (s.inner + 1) * 6; k += blockDim.x) s.dots[k] = 0.0;
+      if (threadIdx.x == 0) *s.iter += 1;
+    }
+    for (int64_t k = tid; k < int64_t(s.inner) * s.nc; k += stride) s.rc[k] = f4(0, 0, 0);
+    for (int i = tid; i < s.n; i += stride) {
+      const float4* x = s.x;
+      s.r[0][i] = rhs_at(s, i) - spmv_row(s, i, [&](int j) { return x[j]; });
+    }
+    grid.sync();
+    for (int k = 0; k < s.inner; ++k) {
+      {
+        const float4 al = k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0);
+        for (int i = tid; i < s.n; i += stride) mg_a_node(s, i, k, false, al);
+      }
+      grid.sync();
+      {
+        const int lane = threadIdx.x & 31;
+        for (int row = tid >> 5; row < s.nc; row += stride >> 5) coarse_row(s, row, lane, k);
+      }
+      grid.sync();
+      {
+        double v[3] = {0, 0, 0};
+        for (int i = tid; i < s.n; i += stride) mg_c_node(s, i, k, v);
+        block_add<3>(v, s.dots + 6 * k);
+      }
+      grid.sync();
+      {
+        double v[3] = {0, 0, 0};
+        const float4 be = k > 0 ? mg_beta(s, k) : f4(0, 0, 0);
+        for (int i = tid; i < s.n; i += stride) mg_d_node(s, i, k, be, v);
+        block_add<3>(v, s.dots + 6 * k + 3);
+      }
+      grid.sync();
+    }
+    {
+      const float4 al = mg_alpha(s, s.inner - 1);
+      for (int i = tid; i < s.n; i += stride) mg_a_node(s, i, s.inner, true, al);
+    }
+    grid.sync();
+  }
 }
 
 // ---------------------------------------------------------------- Chebyshev / Jacobi
@@ -414,70 +502,139 @@ __global__ void displacement_kernel(System s, float4* disp) {
 }
 
 // ---------------------------------------------------------------- transfer
+// One block = kBlock consecutive vertices. V is read and out written through shared memory with
+// 16-byte accesses (3 kBlock values of T per block, contiguous); a partial or unaligned block
+// falls back to scalar accesses. Each thread computes sum_k w_k disp[id_k] for its vertex.
 template <typename T>
+__device__ __forceinline__ bool aligned16(const T* p) { return (reinterpret_cast<uintptr_t>(p) & 15) == 0; }
+
+template <typename T>
+__device__ __forceinline__ void stage_in(T* sh, const T* __restrict__ src, int cnt, bool vec) {
+  if (vec) {
+    constexpr int n4 = int(3 * kBlock * sizeof(T) / 16);
+    const float4* s4 = reinterpret_cast<const float4*>(src);
+    float4* d4 = reinterpret_cast<float4*>(sh);
+    for (int q = threadIdx.x; q < n4; q += kBlock) d4[q] = __ldg(s4 + q);
+  } else {
+    for (int q = threadIdx.x; q < 3 * cnt; q += kBlock) sh[q] = src[q];
+  }
+}
+template <typename T>
+__device__ __forceinline__ void stage_out(const T* sh, T* __restrict__ dst, int cnt, bool vec) {
+  if (vec) {
+    constexpr int n4 = int(3 * kBlock * sizeof(T) / 16);
+    const float4* s4 = reinterpret_cast<const float4*>(sh);
+    float4* d4 = reinterpret_cast<float4*>(dst);
+    for (int q = threadIdx.x; q < n4; q += kBlock) d4[q] = s4[q];
+  } else {
+    for (int q = threadIdx.x; q < 3 * cnt; q += kBlock) dst[q] = sh[q];
+  }
+}
+
+template <typename T, bool Staged>
 __global__ void __launch_bounds__(kBlock) trilinear_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
                                                            const int4* __restrict__ cell_nodes,
                                                            const float4* __restrict__ disp,
                                                            const T* __restrict__ V, T* __restrict__ out) {
-  const int64_t v = v0 + int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (v >= v1) return;
-  const float4 pk = __ldg(packed + v);
-  const int c = __float_as_int(pk.x);
-  const float fx = pk.y, fy = pk.z, fz = pk.w;
-  const int4 n0 = __ldg(cell_nodes + 2 * c), n1 = __ldg(cell_nodes + 2 * c + 1);
-  const int ids[8] = {n0.x, n0.y, n0.z, n0.w, n1.x, n1.y, n1.z, n1.w};
-  const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
+  __shared__ __align__(16) T sh[Staged ? 3 * kBlock : 1];
+  const int64_t b0 = v0 + int64_t(blockIdx.x) * kBlock;
+  const int cnt = int(v1 - b0 < kBlock ? v1 - b0 : kBlock);
+  const bool vec = cnt == kBlock && aligned16(V + 3 * b0) && aligned16(out + 3 * b0);
+  if (Staged) stage_in(sh, V + 3 * b0, cnt, vec);
+  const int t = threadIdx.x;
   float ax = 0.f, ay = 0.f, az = 0.f;
+  if (t < cnt) {
+    const float4 pk = __ldg(packed + b0 + t);
+    const int c = __float_as_int(pk.x);
+    const float fx = pk.y, fy = pk.z, fz = pk.w;
+    const int4 n0 = __ldg(cell_nodes + 2 * c), n1 = __ldg(cell_nodes + 2 * c + 1);
+    const int ids[8] = {n0.x, n0.y, n0.z, n0.w, n1.x, n1.y, n1.z, n1.w};
+    const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
 #pragma unroll
-  for (int k = 0; k < 8; ++k) {
-    const float w = wx[k & 1] * wy[(k >> 1) & 1] * wz[k >> 2];
-    const float4 d = __ldg(disp + ids[k]);
-    ax += w * d.x;
-    ay += w * d.y;
-    az += w * d.z;
+    for (int k = 0; k < 8; ++k) {
+      const float w = wx[k & 1] * wy[(k >> 1) & 1] * wz[k >> 2];
+      const float4 d = __ldg(disp + ids[k]);
+      ax += w * d.x;
+      ay += w * d.y;
+      az += w * d.z;
+    }
   }
-  out[3 * v] = V[3 * v] + T(ax);
-  out[3 * v + 1] = V[3 * v + 1] + T(ay);
-  out[3 * v + 2] = V[3 * v + 2] + T(az);
+  if (!Staged) {  // 3 scalar loads and stores per vertex
+    if (t < cnt) {
+      const int64_t v = b0 + t;
+      out[3 * v] = V[3 * v] + T(ax);
+      out[3 * v + 1] = V[3 * v + 1] + T(ay);
+      out[3 * v + 2] = V[3 * v + 2] + T(az);
+    }
+    return;
+  }
+  __syncthreads();
+  if (t < cnt) {
+    sh[3 * t] += T(ax);
+    sh[3 * t + 1] += T(ay);
+    sh[3 * t + 2] += T(az);
+  }
+  __syncthreads();
+  stage_out(sh, out + 3 * b0, cnt, vec);
 }
 
-template <typename T>
+template <typename T, bool Staged>
 __global__ void __launch_bounds__(kBlock) bspline_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
                                                          const int* __restrict__ node27,
                                                          const float4* __restrict__ disp,
                                                          const T* __restrict__ V, T* __restrict__ out) {
-  const int64_t v = v0 + int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
-  if (v >= v1) return;
-  const float4 pk = __ldg(packed + v);
-  const int64_t b = __float_as_int(pk.x);
-  const float fr[3] = {pk.y, pk.z, pk.w};
-  float w[3][3];
-#pragma unroll
-  for (int a = 0; a < 3; ++a) {
-    const float t = fr[a];
-    w[a][0] = 0.5f * (0.5f - t) * (0.5f - t);
-    w[a][1] = 0.75f - t * t;
-    w[a][2] = 0.5f * (0.5f + t) * (0.5f + t);
-  }
-  const int* ids = node27 + 27 * b;
+  __shared__ __align__(16) T sh[Staged ? 3 * kBlock : 1];
+  const int64_t b0 = v0 + int64_t(blockIdx.x) * kBlock;
+  const int cnt = int(v1 - b0 < kBlock ? v1 - b0 : kBlock);
+  const bool vec = cnt == kBlock && aligned16(V + 3 * b0) && aligned16(out + 3 * b0);
+  if (Staged) stage_in(sh, V + 3 * b0, cnt, vec);
+  const int t = threadIdx.x;
   float ax = 0.f, ay = 0.f, az = 0.f;
+  if (t < cnt) {
+    const float4 pk = __ldg(packed + b0 + t);
+    const int64_t b = __float_as_int(pk.x);
+    const float fr[3] = {pk.y, pk.z, pk.w};
+    float w[3][3];
 #pragma unroll
-  for (int z = 0; z < 3; ++z)
-#pragma unroll
-    for (int y = 0; y < 3; ++y) {
-      const float wyz = w[1][y] * w[2][z];
-#pragma unroll
-      for (int x = 0; x < 3; ++x) {
-        const float ww = w[0][x] * wyz;
-        const float4 d = __ldg(disp + __ldg(ids + 9 * z + 3 * y + x));
-        ax += ww * d.x;
-        ay += ww * d.y;
-        az += ww * d.z;
-      }
+    for (int a = 0; a < 3; ++a) {
+      const float u = fr[a];
+      w[a][0] = 0.5f * (0.5f - u) * (0.5f - u);
+      w[a][1] = 0.75f - u * u;
+      w[a][2] = 0.5f * (0.5f + u) * (0.5f + u);
     }
-  out[3 * v] = V[3 * v] + T(ax);
-  out[3 * v + 1] = V[3 * v + 1] + T(ay);
-  out[3 * v + 2] = V[3 * v + 2] + T(az);
+    const int* ids = node27 + 27 * b;
+#pragma unroll
+    for (int z = 0; z < 3; ++z)
+#pragma unroll
+      for (int y = 0; y < 3; ++y) {
+        const float wyz = w[1][y] * w[2][z];
+#pragma unroll
+        for (int x = 0; x < 3; ++x) {
+          const float ww = w[0][x] * wyz;
+          const float4 d = __ldg(disp + __ldg(ids + 9 * z + 3 * y + x));
+          ax += ww * d.x;
+          ay += ww * d.y;
+          az += ww * d.z;
+        }
+      }
+  }
+  if (!Staged) {  // 3 scalar loads and stores per vertex
+    if (t < cnt) {
+      const int64_t v = b0 + t;
+      out[3 * v] = V[3 * v] + T(ax);
+      out[3 * v + 1] = V[3 * v + 1] + T(ay);
+      out[3 * v + 2] = V[3 * v + 2] + T(az);
+    }
+    return;
+  }
+  __syncthreads();
+  if (t < cnt) {
+    sh[3 * t] += T(ax);
+    sh[3 * t + 1] += T(ay);
+    sh[3 * t + 2] += T(az);
+  }
+  __syncthreads();
+  stage_out(sh, out + 3 * b0, cnt, vec);
 }
 
 __global__ void probe_kernel() {}
@@ -505,6 +662,22 @@ void launch_mg_iteration(const System& s, int k, cudaStream_t st) {
   mg_d_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
 }
 
+int mg_fused_max_blocks() {
+  int dev = 0, coop = 0, sms = 0, per_sm = 0;
+  if (cudaGetDevice(&dev) != cudaSuccess) return 0;
+  if (cudaDeviceGetAttribute(&coop, cudaDevAttrCooperativeLaunch, dev) != cudaSuccess || !coop) return 0;
+  if (cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, dev) != cudaSuccess) return 0;
+  if (cudaOccupancyMaxActiveBlocksPerMultiprocessor(&per_sm, mg_fused_kernel, kBlock, 0) != cudaSuccess) return 0;
+  return sms * per_sm;
+}
+
+cudaError_t launch_mg_fused(const System& s, int iterations, int blocks, cudaStream_t st) {
+  System sc = s;
+  void* args[] = {&sc, &iterations};
+  return cudaLaunchCooperativeKernel(reinterpret_cast<void*>(mg_fused_kernel), dim3(blocks), dim3(kBlock), args,
+                                     0, st);
+}
+
 void launch_mg_final(const System& s, cudaStream_t st) {
   mg_a_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, s.inner, true);
 }
@@ -529,29 +702,29 @@ void launch_displacement(const System& s, float4* disp, cudaStream_t st) {
 
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const float* V,
-                               float* out, cudaStream_t st) {
+                               float* out, bool staged, cudaStream_t st) {
   if (v1 > v0)
-    trilinear_kernel<float><<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+    (staged ? trilinear_kernel<float, true> : trilinear_kernel<float, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(
         v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
 }
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const double* V,
-                               double* out, cudaStream_t st) {
+                               double* out, bool staged, cudaStream_t st) {
   if (v1 > v0)
-    trilinear_kernel<double><<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+    (staged ? trilinear_kernel<double, true> : trilinear_kernel<double, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(
         v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
 }
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const float* V, float* out,
-                             cudaStream_t st) {
+                             bool staged, cudaStream_t st) {
   if (v1 > v0)
-    bspline_kernel<float><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
+    (staged ? bspline_kernel<float, true> : bspline_kernel<float, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
 }
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const double* V, double* out,
-                             cudaStream_t st) {
+                             bool staged, cudaStream_t st) {
   if (v1 > v0)
-    bspline_kernel<double><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
+    (staged ? bspline_kernel<double, true> : bspline_kernel<double, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
 }
 
 cudaError_t probe_kernels() {

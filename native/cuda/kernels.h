@@ -88,6 +88,12 @@ void launch_cg(const System& s, int k, cudaStream_t st);
 // Two-level-preconditioned CG (4 kernels per iteration k = 0..inner-1, then a final update).
 void launch_mg_iteration(const System& s, int k, cudaStream_t st);
 void launch_mg_final(const System& s, cudaStream_t st);
+// The same, fused: `iterations` whole flip-flops (rotations with the energy of the previous
+// flip-flop into energy[it - 1], rhs, the two-level PCG) in one cooperative launch of `blocks`
+// blocks (grid-stride loops, grid-wide barriers between the phases). mg_fused_max_blocks(): the
+// most blocks that can be co-resident (0: no cooperative launch on this device).
+int mg_fused_max_blocks();
+cudaError_t launch_mg_fused(const System& s, int iterations, int blocks, cudaStream_t st);
 void launch_cheby(const System& s, int k, float c1, float c2, cudaStream_t st);
 
 void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st);
@@ -95,19 +101,20 @@ void launch_handle_positions(const System& s, float4* out, cudaStream_t st);
 void launch_displacement(const System& s, float4* disp, cudaStream_t st);
 
 // Transfer: out[3 v + c] = V[3 v + c] + sum_k w_k disp[id_k], v in [v0, v1). packed[v] =
-// (base cell / node id as int bits, 3 fractions): one 16-byte load per vertex.
+// (base cell / node id as int bits, 3 fractions): one 16-byte load per vertex. staged: V and out
+// go through shared memory with 16-byte loads/stores (else 3 scalar loads/stores per vertex).
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const float* V,
-                               float* out, cudaStream_t st);
+                               float* out, bool staged, cudaStream_t st);
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const double* V,
-                               double* out, cudaStream_t st);
+                               double* out, bool staged, cudaStream_t st);
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const float* V, float* out,
-                             cudaStream_t st);
+                             bool staged, cudaStream_t st);
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const double* V, double* out,
-                             cudaStream_t st);
+                             bool staged, cudaStream_t st);
 
 // Can this build's kernels run on the current device? (no image for its architecture, ...)
 cudaError_t probe_kernels();

@@ -5,12 +5,21 @@
 //
 // Tuning knobs (environment, read when a backend is made; for benchmarks):
 //   LARAP_CUDA_SOLVER   mg (default, two-level PCG) | pcg | cheby | jacobi
-//   LARAP_CUDA_INNER    inner solver iterations per flip-flop (default 2 for mg, else 8)
+//   LARAP_CUDA_INNER    inner solver iterations per flip-flop (default for mg: 1 when the coarse
+//                       level is 2x2x2 aggregates, else 2; 8 for the others)
 //   LARAP_CUDA_MG_COARSE  most coarse nodes of mg (default 1536)
 //   LARAP_CUDA_GRAPH    1 (default): one CUDA graph per flip-flop; 0: plain launches
 //   LARAP_CUDA_PROFILE  a file path: per-stage device times (plain launches, a sync per
 //                       flip-flop) are appended to it as JSON lines, and stats carry them
 //   LARAP_CUDA_CHEBY_RATIO  lambda_max / lambda_min assumed by the Chebyshev solver (default 50)
+//   LARAP_CUDA_FUSED    1 (default): mg runs all flip-flops of a solve in one cooperative kernel;
+//                       0: one graph (or plain launches) per flip-flop
+//   LARAP_CUDA_COOP_BLOCKS  blocks of the fused kernel (default: enough for one node per thread,
+//                       at least one per SM, at most what can be co-resident)
+//   LARAP_CUDA_TRANSFER scalar (default) | staged (16-byte loads/stores through shared memory;
+//                       measured slower on the H200, kept for comparison)
+//   LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES  tests: device allocations fail (MemoryError) once the
+//                       process's live device bytes would exceed this
 #ifdef LARAP_WITH_CUDA
 #include <cuda_runtime.h>
 #include <larap/errors.h>
@@ -18,6 +27,7 @@
 #include <Eigen/Dense>
 #include <Eigen/Sparse>
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -51,6 +61,33 @@ double ms_since(Clock::time_point t0) {
     if (larap_err_ != cudaSuccess) fail(larap_err_, #call);        \
   } while (0)
 
+// ------------------------------------------------------------------ device allocations
+// Live device bytes of every DevBuf in the process, and the fault-injection knob
+// LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES (read at every allocation, for tests): an allocation that
+// would take the total over it fails as if cudaMalloc had returned cudaErrorMemoryAllocation.
+std::atomic<size_t> g_device_bytes{0};
+
+void* device_alloc(size_t bytes) {
+  const char* lim = std::getenv("LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES");
+  if (lim && *lim) {
+    const unsigned long long limit = std::strtoull(lim, nullptr, 10);
+    if (g_device_bytes.load() + bytes > limit)
+      throw OutOfMemory("device out of memory: cannot allocate " + std::to_string(bytes) + " bytes (" +
+                        std::to_string(g_device_bytes.load()) + " in use; simulated by "
+                        "LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES=" + lim + ")");
+  }
+  void* q = nullptr;
+  const cudaError_t e = cudaMalloc(&q, bytes);
+  if (e != cudaSuccess) {
+    cudaGetLastError();
+    if (e == cudaErrorMemoryAllocation)
+      throw OutOfMemory("device out of memory: cannot allocate " + std::to_string(bytes) + " bytes");
+    fail(e, "cudaMalloc");
+  }
+  g_device_bytes += bytes;
+  return q;
+}
+
 // ------------------------------------------------------------------ RAII wrappers
 template <typename T>
 class DevBuf {
@@ -60,7 +97,10 @@ class DevBuf {
   DevBuf& operator=(const DevBuf&) = delete;
   ~DevBuf() { release(); }
   void release() {
-    if (p_) cudaFree(p_);
+    if (p_) {
+      cudaFree(p_);
+      g_device_bytes -= cap_ * sizeof(T);
+    }
     p_ = nullptr;
     cap_ = 0;
   }
@@ -69,15 +109,7 @@ class DevBuf {
     if (n <= cap_ && p_) return p_;
     release();
     const size_t bytes = std::max<size_t>(n, 1) * sizeof(T);
-    void* q = nullptr;
-    const cudaError_t e = cudaMalloc(&q, bytes);
-    if (e != cudaSuccess) {
-      cudaGetLastError();
-      if (e == cudaErrorMemoryAllocation)
-        throw OutOfMemory("device out of memory: cannot allocate " + std::to_string(bytes) + " bytes");
-      fail(e, "cudaMalloc");
-    }
-    p_ = static_cast<T*>(q);
+    p_ = static_cast<T*>(device_alloc(bytes));
     cap_ = std::max<size_t>(n, 1);
     return p_;
   }
@@ -273,6 +305,16 @@ class CudaBackend final : public Backend {
     else throw InvalidInput("LARAP_CUDA_SOLVER must be pcg, mg, cheby or jacobi, got '" + sname + "'");
     inner_ = std::clamp(env_int("LARAP_CUDA_INNER", solver_ == Solver::MG ? 2 : 8), 1, 1000);
     use_graph_ = env_int("LARAP_CUDA_GRAPH", 1) != 0;
+    use_fused_ = env_int("LARAP_CUDA_FUSED", 1) != 0;
+    coop_blocks_env_ = env_int("LARAP_CUDA_COOP_BLOCKS", 0);
+    {
+      const char* tv = std::getenv("LARAP_CUDA_TRANSFER");
+      const std::string tn = tv ? tv : "";
+      if (tn != "" && tn != "staged" && tn != "scalar")
+        throw InvalidInput("LARAP_CUDA_TRANSFER must be staged or scalar, got '" + tn + "'");
+      staged_ = tn == "staged";  // scalar by default: staged measured slower (docs/results-gpu.md)
+    }
+    inner_env_ = std::getenv("LARAP_CUDA_INNER") && *std::getenv("LARAP_CUDA_INNER");
     const char* p = std::getenv("LARAP_CUDA_PROFILE");
     profile_path_ = p ? p : "";
     cheb_ratio_ = std::max(1.0, double(env_int("LARAP_CUDA_CHEBY_RATIO", 50)));
@@ -401,7 +443,17 @@ class CudaBackend final : public Backend {
         agg[size_t(i)] = it->second;
       }
       nc = int(ids.size());
-      if (nc <= mg_coarse_max_) break;
+      if (nc <= mg_coarse_max_) {
+        mg_shift_ = shift;
+        break;
+      }
+    }
+    // Default inner iterations: with 2x2x2 aggregates one two-level PCG step per flip-flop reaches
+    // quality sooner than two (more flip-flops, each cheaper); coarser levels need two.
+    if (!inner_env_ && mg_shift_ == 1 && inner_ != 1) {
+      inner_ = 1;
+      sys_.inner = 1;
+      graph_.reset();
     }
     Eigen::MatrixXd Ac = Eigen::MatrixXd::Zero(nc, nc);
     for (int i = 0; i < n; ++i)
@@ -499,6 +551,20 @@ class CudaBackend final : public Backend {
         ms_sol += elapsed_ms(ev_[2], ev_[3]);
       }
       LARAP_CK(cudaEventRecord(ev_[0].get(), stream_));
+    } else if (solver_ == Solver::MG && use_fused_ && fused_blocks() > 0) {
+      // One cooperative launch for all flip-flops (energy of flip-flop it - 1 in its rotation
+      // phase, as in the graph); at most kFusedChunk flip-flops a launch.
+      constexpr int kFusedChunk = 64;
+      for (int it0 = 0; it0 < iterations; it0 += kFusedChunk) {
+        cuda::System sc = sys_;
+        sc.energy = sys_.energy + it0;
+        const int cnt = std::min(kFusedChunk, iterations - it0);
+        if (it0 > 0) {  // the first rotation phase of this chunk adds flip-flop it0 - 1's energy
+          cuda::launch_rotations(sys_, false, it0 - 1, stream_);
+          LARAP_CK(cudaGetLastError());
+        }
+        LARAP_CK(cuda::launch_mg_fused(sc, cnt, fused_blocks(), stream_));
+      }
     } else if (use_graph_) {
       if (!graph_.get()) build_graph();
       for (int it = 0; it < iterations; ++it) LARAP_CK(cudaGraphLaunch(graph_.get(), stream_));
@@ -622,6 +688,17 @@ class CudaBackend final : public Backend {
       LARAP_CK(cudaMemcpyAsync(sys_.x, sys_.x_tmp, sizeof(float4) * n_, cudaMemcpyDeviceToDevice, stream_));
   }
 
+  // Blocks for the fused kernel (0: no cooperative launch possible).
+  int fused_blocks() {
+    if (coop_max_ < 0) coop_max_ = cuda::mg_fused_max_blocks();
+    if (coop_max_ <= 0) return 0;
+    int dev = 0, sms = 1;
+    LARAP_CK(cudaGetDevice(&dev));
+    LARAP_CK(cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, dev));
+    int b = coop_blocks_env_ > 0 ? coop_blocks_env_ : std::max((n_ + 255) / 256, sms);
+    return std::clamp(b, 1, coop_max_);
+  }
+
   void flip_flop() {
     cuda::launch_rotations(sys_, true, -1, stream_);
     LARAP_CK(cudaGetLastError());
@@ -708,9 +785,9 @@ class CudaBackend final : public Backend {
   template <typename T>
   void launch_transfer(const Binding& b, DevBinding& d, int64_t v0, int64_t v1, const T* V, T* out) {
     if (b.kind == WeightKind::Trilinear)
-      cuda::launch_transfer_trilinear(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, stream_);
+      cuda::launch_transfer_trilinear(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, staged_, stream_);
     else
-      cuda::launch_transfer_bspline(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, stream_);
+      cuda::launch_transfer_bspline(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, staged_, stream_);
     LARAP_CK(cudaGetLastError());
   }
 
@@ -781,8 +858,14 @@ class CudaBackend final : public Backend {
   Solver solver_ = Solver::PCG;
   int inner_ = 8;
   bool use_graph_ = true;
+  bool use_fused_ = true;
+  int coop_blocks_env_ = 0;
+  bool staged_ = false;
+  bool inner_env_ = false;
+  int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
   std::string profile_path_;
   int mg_coarse_max_ = 1536;
+  int mg_shift_ = 0;
   double cheb_ratio_ = 50.0, lam_min_ = 0.0, lam_max_ = 2.0;
   bool ready_ = false;
   HandleSystem hs_;

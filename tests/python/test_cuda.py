@@ -186,3 +186,93 @@ def test_solvers_agree_with_cpu(solver, inner, monkeypatch):
     assert np.all(np.diff(E) <= 1e-4 * E[0] + 1e-7)
     err = np.linalg.norm(X - Xr, axis=1).max()
     assert err < 1e-4 * diag(V), f"max vertex distance {err / diag(V):.3g} of the diagonal"
+
+
+@need_cuda
+def test_unfused_graph_path_agrees_with_cpu(monkeypatch):
+    """LARAP_CUDA_FUSED=0 (one CUDA graph per flip-flop) converges to the CPU result too."""
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    ref = larap.Deformer(V, F, cells=1500, device="cpu")
+    ref.set_handles(h)
+    Xr = ref.solve(T, iterations=200)
+    monkeypatch.setenv("LARAP_CUDA_FUSED", "0")
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    d.set_handles(h)
+    X = d.solve(T, iterations=200)
+    assert np.linalg.norm(X - Xr, axis=1).max() < 1e-4 * diag(V)
+
+
+@need_cuda
+def test_fused_matches_unfused_energies(monkeypatch):
+    """The fused cooperative kernel computes the same flip-flops as the per-kernel graph
+    (energies per flip-flop, incl. across its 64-flip-flop launch chunks)."""
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    E = {}
+    for fused in ("1", "0"):
+        monkeypatch.setenv("LARAP_CUDA_FUSED", fused)
+        d = larap.Deformer(V, F, cells=1500, device="cuda")
+        d.set_handles(h)
+        d.solve(T, iterations=130)
+        E[fused] = np.array(d.stats["energy"])
+    assert len(E["1"]) == 130 and np.all(np.isfinite(E["1"]))
+    assert np.allclose(E["1"], E["0"], rtol=1e-3, atol=1e-9), np.abs(E["1"] / E["0"] - 1).max()
+
+
+FAIL_ALLOC = "LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES"
+
+
+@need_cuda
+def test_out_of_memory_at_construction_is_memoryerror(monkeypatch):
+    V, F, h, nl = tube_model()
+    monkeypatch.setenv(FAIL_ALLOC, "1")
+    with pytest.raises(MemoryError, match="device out of memory"):
+        larap.Deformer(V, F, cells=1500, device="cuda")
+    monkeypatch.delenv(FAIL_ALLOC)
+    d = larap.Deformer(V, F, cells=1500, device="cuda")   # the process stays usable
+    d.set_handles(h)
+    assert np.isfinite(d.solve(bend_targets(V, h, nl), iterations=5)).all()
+
+
+@need_cuda
+def test_out_of_memory_in_set_handles_is_memoryerror(monkeypatch):
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    monkeypatch.setenv(FAIL_ALLOC, "1")
+    with pytest.raises(MemoryError, match="LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES"):
+        d.set_handles(h)
+    monkeypatch.delenv(FAIL_ALLOC)
+    d.set_handles(h)                                       # the same Deformer recovers
+    X = d.solve(V[h], iterations=3)
+    assert np.abs(X - V).max() < 1e-4 * diag(V)
+    d2 = larap.Deformer(V, F, cells=1500, device="cuda")  # and a second one works
+    d2.set_handles(h)
+    assert np.isfinite(d2.solve(bend_targets(V, h, nl), iterations=5)).all()
+
+
+@need_cuda
+def test_auto_falls_back_to_cpu_when_device_memory_runs_out(monkeypatch):
+    V, F, h, nl = tube_model()
+    monkeypatch.setenv(FAIL_ALLOC, "1")
+    with pytest.warns(RuntimeWarning, match="fell back to the CPU"):
+        d = larap.Deformer(V, F, cells=1500, device="auto")
+    assert d.device == "cpu"
+    d.set_handles(h)
+    assert np.isfinite(d.solve(bend_targets(V, h, nl), iterations=5)).all()
+
+
+@need_cuda
+def test_auto_falls_back_when_set_handles_runs_out(monkeypatch):
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device="auto")
+    assert d.device == "cuda"
+    d.set_handles(h[: len(h) // 2])
+    X0 = d.solve(V[h[: len(h) // 2]], iterations=3)
+    monkeypatch.setenv(FAIL_ALLOC, "1")
+    with pytest.warns(RuntimeWarning, match="fell back to the CPU"):
+        d.set_handles(h)                                   # the bigger handle set does not fit
+    assert d.device == "cpu"
+    assert np.abs(d.lattice_deformed() - d.lattice_rest()).max() < 1e-4 * diag(V)  # pose kept
+    X = d.solve(bend_targets(V, h, nl), iterations=5)
+    assert np.isfinite(X).all() and np.abs(X0 - V).max() < 1e-4 * diag(V)

@@ -89,8 +89,8 @@ def main():
             cpu = next(l.split(":", 1)[1].strip() for l in f if l.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    meta = (f"{datetime.date.today()} — {cpu}, {os.cpu_count()} cores, OMP_NUM_THREADS="
-            f"{os.environ.get('OMP_NUM_THREADS', 'default')}, device cpu")
+    meta = (f"{datetime.date.today()} — {cpu}, {os.cpu_count()} cores, {larap.num_threads()} engine threads "
+            f"(oneTBB), simplicial CHOLMOD, device cpu")
     print(meta)
     if args.record:
         with open(args.record, "a") as f:

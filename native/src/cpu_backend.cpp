@@ -57,12 +57,21 @@ class CpuBackend final : public Backend {
     if (llt_->info() != Eigen::Success)
       throw std::runtime_error("the lattice system could not be factorised (not positive definite)");
     rhs_.resize(n, 3);
+    handle_energy_.assign(size_t(hs.m), 0.0);
   }
 
   void set_pose(const RowMatrixX3d& nodes) override { pose_ = nodes; }
   void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
 
-  void handle_positions(RowMatrixX3d& out) const override { out = B_ * pose_; }
+  void handle_positions(RowMatrixX3d& out) const override {
+    out.resize(hs_.m, 3);
+    const int s = hs_.stencil;
+    parallel_for(hs_.m, [&](int64_t j) {
+      Eigen::Vector3d x = Eigen::Vector3d::Zero();
+      for (int k = 0; k < s; ++k) x += hs_.weights[j * s + k] * pose_.row(hs_.ids[j * s + k]).transpose();
+      out.row(j) = x.transpose();
+    }, 2048);
+  }
 
   void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) override {
     const int64_t n = lat_.num_nodes();
@@ -76,8 +85,15 @@ class CpuBackend final : public Backend {
     const Eigen::MatrixX3d Btt = Bt_ * targets;  // fixed for this solve
     for (int it = 0; it < iterations; ++it) {
       auto t0 = Clock::now();
-      rotations();
+      // The pass that fits the new rotations also sums the ARAP energy of the previous
+      // iteration's pose with its rotations, so the energy costs no extra pass over the lattice.
+      rotations(/*with_energy=*/it > 0);
       stats.ms_rotations += ms_since(t0);
+      if (it > 0) {
+        t0 = Clock::now();
+        stats.energy.push_back(finish_energy(targets));
+        stats.ms_energy += ms_since(t0);
+      }
 
       t0 = Clock::now();
       right_hand_side(Btt);
@@ -87,15 +103,16 @@ class CpuBackend final : public Backend {
       const Eigen::MatrixX3d sol = llt_->solve(rhs_);
       pose_ = sol;
       stats.ms_solve += ms_since(t0);
-
-      t0 = Clock::now();
+    }
+    if (iterations > 0) {
+      const auto t0 = Clock::now();
       stats.energy.push_back(evaluate(targets));
       stats.ms_energy += ms_since(t0);
     }
   }
 
   double energy(const RowMatrixX3d& targets) override {
-    rotations();
+    rotations(false);
     return evaluate(targets);
   }
 
@@ -111,7 +128,9 @@ class CpuBackend final : public Backend {
     stats.ms_transfer += ms_since(t0);
   }
 
-  void rotations() {
+  // New rotations from the current pose. with_energy: first store in node_energy_ each node's
+  // energy of the current pose with the rotations it had (the state after the last global step).
+  void rotations(bool with_energy) {
     const int64_t n = lat_.num_nodes();
     const double* P = pose_.data();
     const double* C = lat_.rest.data();
@@ -120,12 +139,36 @@ class CpuBackend final : public Backend {
     parallel_for(n, [&](int64_t i) {
       const Eigen::Vector3d pi(P + 3 * i), ci(C + 3 * i);
       Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+      double e = 0.0;
       for (int32_t k = off[i]; k < off[i + 1]; ++k) {
         const int64_t j = adj[k];
-        S.noalias() += (pi - Eigen::Vector3d(P + 3 * j)) * (ci - Eigen::Vector3d(C + 3 * j)).transpose();
+        const Eigen::Vector3d dp = pi - Eigen::Vector3d(P + 3 * j), dc = ci - Eigen::Vector3d(C + 3 * j);
+        S.noalias() += dp * dc.transpose();
+        if (with_energy) e += (dp - R_[i] * dc).squaredNorm();
       }
+      if (with_energy) node_energy_[i] = node_energy(i, e);
       R_[i] = best_rotation_fast(S);
     }, 256);
+  }
+
+  double node_energy(int64_t i, double arap) const {
+    double e = hs_.gamma_eff * arap;
+    if (hs_.anchored[i]) e += hs_.anchor_weight * (pose_.row(i) - lat_.rest.row(i)).squaredNorm();
+    return e;
+  }
+
+  // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term.
+  double finish_energy(const RowMatrixX3d& targets) {
+    double total = 0.0;
+    for (double e : node_energy_) total += e;
+    const int s = hs_.stencil;
+    parallel_for(hs_.m, [&](int64_t j) {
+      Eigen::Vector3d x = -targets.row(j).transpose();
+      for (int k = 0; k < s; ++k) x += hs_.weights[j * s + k] * pose_.row(hs_.ids[j * s + k]).transpose();
+      handle_energy_[j] = x.squaredNorm();
+    }, 2048);
+    for (double e : handle_energy_) total += e;
+    return total * hs_.energy_scale;
   }
 
   void right_hand_side(const Eigen::MatrixX3d& Btt) {
@@ -155,14 +198,9 @@ class CpuBackend final : public Backend {
         const int32_t j = lat_.adj[k];
         e += ((P.row(i) - P.row(j)).transpose() - R_[i] * (C.row(i) - C.row(j)).transpose()).squaredNorm();
       }
-      e *= hs_.gamma_eff;
-      if (hs_.anchored[i]) e += hs_.anchor_weight * (P.row(i) - C.row(i)).squaredNorm();
-      node_energy_[i] = e;
+      node_energy_[i] = node_energy(i, e);
     }, 1024);
-    double total = 0.0;
-    for (int64_t i = 0; i < n; ++i) total += node_energy_[i];  // fixed order: deterministic
-    total += (B_ * P - targets).squaredNorm();
-    return total * hs_.energy_scale;
+    return finish_energy(targets);
   }
 
   const Lattice& lat_;
@@ -170,6 +208,7 @@ class CpuBackend final : public Backend {
   RowMatrixX3d pose_;
   std::vector<Eigen::Matrix3d> R_;
   std::vector<double> node_energy_;
+  std::vector<double> handle_energy_;
   HandleSystem hs_;
   Eigen::SparseMatrix<double, Eigen::RowMajor> B_;
   Eigen::SparseMatrix<double> Bt_;

@@ -91,6 +91,8 @@ void Deformer::set_handles(const std::vector<int64_t>& indices) {
   }
   handles_ = indices;
   handles_set_ = true;
+  rest_handles_.resize(int64_t(indices.size()), 3);
+  for (size_t j = 0; j < indices.size(); ++j) rest_handles_.row(j) = mesh_.vertices.row(indices[j]);
   prepare_handles();
 }
 
@@ -205,11 +207,9 @@ void Deformer::solve_impl(const double* targets, int iterations, T* out) {
     backend_->apply_rigid(R, t);
     stats_.rigid_carry = true;
   }
-  RowMatrixX3d rest_handles(m, 3);
-  for (int64_t j = 0; j < m; ++j) rest_handles.row(j) = mesh_.vertices.row(handles_[j]);
   Eigen::Matrix3d R0;
   Eigen::Vector3d t0r;
-  const double from_rest = rigid_fit(rest_handles, tgt, R0, t0r);
+  const double from_rest = rigid_fit(rest_handles_, tgt, R0, t0r);
   if (from_rest < std::min(before, carried)) {
     const double e_prev = backend_->energy(tgt);
     RowMatrixX3d prev;

@@ -42,20 +42,14 @@ double rigid_fit(const RowMatrixX3d& from, const RowMatrixX3d& to, Eigen::Matrix
   t.setZero();
   if (m == 0) return 0.0;
   const Eigen::RowVector3d cf = from.colwise().mean(), ct = to.colwise().mean();
-  Eigen::Matrix3d S = Eigen::Matrix3d::Zero(), C = Eigen::Matrix3d::Zero();
-  for (int64_t j = 0; j < m; ++j) {
-    const Eigen::Vector3d p = (from.row(j) - cf).transpose(), q = (to.row(j) - ct).transpose();
-    S += q * p.transpose();
-    C += p * p.transpose();
-  }
+  const RowMatrixX3d P = from.rowwise() - cf, Q = to.rowwise() - ct;
+  const Eigen::Matrix3d S = Q.transpose() * P, C = P.transpose() * P;
   Eigen::JacobiSVD<Eigen::Matrix3d> spread(C);
   const Eigen::Vector3d s = spread.singularValues();
   if (m >= 3 && s[1] > 1e-10 * s[0] && s[0] > 0.0) R = best_rotation(S);
   t = ct.transpose() - R * cf.transpose();
-  double res = 0.0;
-  for (int64_t j = 0; j < m; ++j)
-    res += (R * from.row(j).transpose() + t - to.row(j).transpose()).squaredNorm();
-  return res;
+  // R p + t - q = R (p - cf) - (q - ct)
+  return (P * R.transpose() - Q).squaredNorm();
 }
 
 }  // namespace larap

@@ -93,6 +93,7 @@ class Deformer {
   mutable std::unique_ptr<Binding> bindings_[2];
   std::unique_ptr<Backend> backend_;
   std::vector<int64_t> handles_;
+  RowMatrixX3d rest_handles_;  // rest positions of the handles
   bool handles_set_ = false;
   bool auto_device_ = false;
   std::string fallback_;

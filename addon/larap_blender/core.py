@@ -743,6 +743,9 @@ def _weights_name(s, which):
     return s.weights_final if which == "final" else s.weights_interactive
 
 
+FINAL_TOLERANCE = 1e-5  # relative energy decrease at which a final solve stops
+
+
 def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
     """One solve from the current target transforms; writes the pose key. Returns SolveResult."""
     check_object(obj, need_bound=True)
@@ -765,7 +768,12 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
                 d.weights = wname
             if abs(float(d.gamma) - float(s.gamma)) > 1e-12 * max(1.0, float(s.gamma)):
                 d.gamma = float(s.gamma)
-            d.solve(tgt, int(s.iterations), out=rt.out)
+            if weights == "final":
+                # The final pose converges (up to 10x the interactive iterations), so solving
+                # again from the same targets gives the same pose.
+                d.solve(tgt, max(30, 10 * int(s.iterations)), out=rt.out, tol=FINAL_TOLERANCE)
+            else:
+                d.solve(tgt, int(s.iterations), out=rt.out)
             stats = dict(d.stats)
             rt.stats = stats
             engine_ms = float(stats.get("ms_total", 0.0))

@@ -166,18 +166,20 @@ void Deformer::prepare_handles() {
   stats_.ms_factorize = ms_since(t0);
 }
 
-void Deformer::solve(const double* targets, int iterations, double* out) {
-  solve_impl(targets, iterations, out);
+void Deformer::solve(const double* targets, int iterations, double* out, double tolerance) {
+  solve_impl(targets, iterations, out, tolerance);
 }
-void Deformer::solve(const double* targets, int iterations, float* out) {
-  solve_impl(targets, iterations, out);
+void Deformer::solve(const double* targets, int iterations, float* out, double tolerance) {
+  solve_impl(targets, iterations, out, tolerance);
 }
 
 template <typename T>
-void Deformer::solve_impl(const double* targets, int iterations, T* out) {
+void Deformer::solve_impl(const double* targets, int iterations, T* out, double tolerance) {
   if (!handles_set_) throw StateError("solve() needs set_handles() first");
   if (iterations < 0 || iterations > 100000)
     throw InvalidInput("iterations must be between 0 and 100000, got " + std::to_string(iterations));
+  if (!(tolerance >= 0.0) || !std::isfinite(tolerance))
+    throw InvalidInput("tolerance must be a non-negative number, got " + std::to_string(tolerance));
   const int64_t m = static_cast<int64_t>(handles_.size());
   for (int64_t k = 0; k < 3 * m; ++k)
     if (!std::isfinite(targets[k]))
@@ -221,8 +223,23 @@ void Deformer::solve_impl(const double* targets, int iterations, T* out) {
   }
 
   stats_.ms_start = ms_since(t0);
-  backend_->iterate(tgt, iterations, stats_);
-  stats_.iterations = iterations;
+  if (tolerance > 0.0) {
+    // In chunks, so that a backend keeps its fused multi-iteration path.
+    int done = 0;
+    while (done < iterations) {
+      const int chunk = std::min(5, iterations - done);
+      backend_->iterate(tgt, chunk, stats_);
+      done += chunk;
+      const auto& e = stats_.energy;
+      const size_t k = e.size();
+      if (k >= 2 && e[k - 2] - e[k - 1] <= tolerance * e[k - 1]) break;
+      if (k >= 1 && e[k - 1] == 0.0) break;
+    }
+    stats_.iterations = done;
+  } else {
+    backend_->iterate(tgt, iterations, stats_);
+    stats_.iterations = iterations;
+  }
   backend_->transfer(binding(), out, stats_);
   stats_.ms_total = ms_since(t0);
 }

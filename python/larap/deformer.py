@@ -126,15 +126,19 @@ class Deformer:
         self._handles_set = True
         self._warn_fallback()
 
-    def solve(self, targets, iterations: int = 5, *, out=None) -> np.ndarray:
+    def solve(self, targets, iterations: int = 5, *, out=None, tol=None) -> np.ndarray:
         """Deformed vertices (n, 3) for handle targets (len(handles), 3), same order as the
         handles. Warm-starts from the previous pose; `iterations` flip-flop steps (3-8 for
         interaction, more for a converged result). `out`: optional C-contiguous (n, 3) float32 or
-        float64 array written in place and returned (float32 suits Blender's foreach_set)."""
+        float64 array written in place and returned (float32 suits Blender's foreach_set).
+        `tol`: iterate until an iteration lowers the energy by less than tol * energy, at most
+        `iterations` times (stats["iterations"] says how many ran); for converged final poses."""
         if not self._handles_set:
             raise RuntimeError("solve() needs set_handles() first")
         if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
             raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
+        if tol is not None:
+            tol = _positive_float("tol", tol)
         T = _points("targets", targets, rows=len(self._core.handles))
         if out is not None:
             if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float64):
@@ -143,7 +147,7 @@ class Deformer:
                 raise ValueError(f"out should have shape ({self._n}, 3), shape is {out.shape}")
             if not out.flags.c_contiguous or not out.flags.writeable:
                 raise ValueError("out must be C-contiguous and writeable")
-        return self._core.solve(T, int(iterations), out)
+        return self._core.solve(T, int(iterations), out, 0.0 if tol is None else tol)
 
     def reset(self) -> None:
         """Forget the pose: the next solve starts from the rest lattice."""

@@ -51,7 +51,7 @@ std::unique_ptr<larap::Deformer> make(F64 vertices, I64 offsets, I64 indices, in
   return std::make_unique<larap::Deformer>(std::move(mesh), opt);
 }
 
-py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out) {
+py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out, double tolerance) {
   const int64_t m = static_cast<int64_t>(d.handles().size());
   const int64_t n = d.mesh().num_vertices();
   require_rows3(targets.request(), "targets", m);
@@ -70,11 +70,11 @@ py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out)
   if (py::isinstance<py::array_t<float>>(result) && result.dtype().is(py::dtype::of<float>())) {
     float* o = static_cast<float*>(result.mutable_data());
     py::gil_scoped_release release;
-    d.solve(t, iterations, o);
+    d.solve(t, iterations, o, tolerance);
   } else if (result.dtype().is(py::dtype::of<double>())) {
     double* o = static_cast<double*>(result.mutable_data());
     py::gil_scoped_release release;
-    d.solve(t, iterations, o);
+    d.solve(t, iterations, o, tolerance);
   } else {
     throw larap::InvalidInput("out must be a float32 or float64 array");
   }
@@ -113,7 +113,8 @@ void bind_deformer(py::module_& m) {
              py::gil_scoped_release release;
              d.set_handles(v);
            })
-      .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none())
+      .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none(),
+           py::arg("tolerance") = 0.0)
       .def("reset", &larap::Deformer::reset)
       .def_property(
           "weights", [](const larap::Deformer& d) { return std::string(larap::weight_kind_name(d.weights())); },

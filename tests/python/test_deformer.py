@@ -233,3 +233,20 @@ def test_lattice_accessors(tube):
     assert np.array_equal(d.lattice_deformed(), rest)
     # the lattice covers the mesh
     assert (rest.min(0) <= V.min(0)).all() and (rest.max(0) >= V.max(0)).all()
+
+
+def test_tolerance_stops_when_converged(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1500)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    X = d.solve(T, iterations=200, tol=1e-6)
+    n = d.stats["iterations"]
+    e = d.stats["energy"]
+    assert 2 <= n < 200 and len(e) == n
+    assert e[-2] - e[-1] <= 1e-6 * e[-1]
+    # converged: solving again with the same targets barely moves the pose
+    Y = d.solve(T, iterations=5)
+    assert np.abs(Y - X).max() < 1e-3 * diagonal(V)
+    with pytest.raises(ValueError):
+        d.solve(T, tol=-1.0)

@@ -63,8 +63,10 @@ class Deformer {
   void reset();
 
   // targets: #handles by 3 row-major; out: #V by 3 row-major. Warm-starts from the last pose.
-  void solve(const double* targets, int iterations, double* out);
-  void solve(const double* targets, int iterations, float* out);
+  // iterations: flip-flop steps; with tolerance > 0 it is the maximum, and the solve stops once
+  // an iteration lowers the energy by less than tolerance * energy (converged).
+  void solve(const double* targets, int iterations, double* out, double tolerance = 0.0);
+  void solve(const double* targets, int iterations, float* out, double tolerance = 0.0);
 
   const Lattice& lattice() const { return lattice_; }
   const PolygonMesh& mesh() const { return mesh_; }
@@ -81,7 +83,7 @@ class Deformer {
 
  private:
   template <typename T>
-  void solve_impl(const double* targets, int iterations, T* out);
+  void solve_impl(const double* targets, int iterations, T* out, double tolerance);
   void prepare_handles();
 
   PolygonMesh mesh_;

@@ -7,6 +7,7 @@
 #include <pybind11/stl.h>
 
 #include <cstring>
+#include <mutex>
 
 #include "parallel.h"
 
@@ -70,10 +71,12 @@ py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out,
   if (py::isinstance<py::array_t<float>>(result) && result.dtype().is(py::dtype::of<float>())) {
     float* o = static_cast<float*>(result.mutable_data());
     py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(d.mutex());
     d.solve(t, iterations, o, tolerance);
   } else if (result.dtype().is(py::dtype::of<double>())) {
     double* o = static_cast<double*>(result.mutable_data());
     py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(d.mutex());
     d.solve(t, iterations, o, tolerance);
   } else {
     throw larap::InvalidInput("out must be a float32 or float64 array");
@@ -82,7 +85,12 @@ py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out,
 }
 
 py::dict stats(const larap::Deformer& d) {
-  const auto& s = d.stats();
+  larap::SolveStats s;
+  {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(d.mutex());
+    s = d.stats();
+  }
   py::dict r;
   r["energy"] = s.energy;
   r["iterations"] = s.iterations;
@@ -111,19 +119,29 @@ void bind_deformer(py::module_& m) {
            [](larap::Deformer& d, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
              py::gil_scoped_release release;
+             std::lock_guard<std::mutex> lock(d.mutex());
              d.set_handles(v);
            })
       .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none(),
            py::arg("tolerance") = 0.0)
-      .def("reset", &larap::Deformer::reset)
+      .def("reset", [](larap::Deformer& d) {
+        py::gil_scoped_release release;
+        std::lock_guard<std::mutex> lock(d.mutex());
+        d.reset();
+      })
       .def_property(
           "weights", [](const larap::Deformer& d) { return std::string(larap::weight_kind_name(d.weights())); },
           [](larap::Deformer& d, const std::string& w) {
             const auto k = larap::parse_weight_kind(w);
             py::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(d.mutex());
             d.set_weights(k);
           })
-      .def_property("gamma", &larap::Deformer::gamma, &larap::Deformer::set_gamma)
+      .def_property("gamma", &larap::Deformer::gamma, [](larap::Deformer& d, double g) {
+        py::gil_scoped_release release;
+        std::lock_guard<std::mutex> lock(d.mutex());
+        d.set_gamma(g);
+      })
       .def_property_readonly("num_vertices", [](const larap::Deformer& d) { return d.mesh().num_vertices(); })
       .def_property_readonly("num_nodes", [](const larap::Deformer& d) { return d.lattice().num_nodes(); })
       .def_property_readonly("num_cells", [](const larap::Deformer& d) { return d.lattice().num_cells(); })
@@ -137,7 +155,15 @@ void bind_deformer(py::module_& m) {
       })
       .def_property_readonly("stats", &stats)
       .def("lattice_rest", [](const larap::Deformer& d) { return to_numpy(d.lattice().rest); })
-      .def("lattice_deformed", [](const larap::Deformer& d) { return to_numpy(d.lattice_deformed()); })
+      .def("lattice_deformed", [](const larap::Deformer& d) {
+        larap::RowMatrixX3d p;
+        {
+          py::gil_scoped_release release;
+          std::lock_guard<std::mutex> lock(d.mutex());
+          p = d.lattice_deformed();
+        }
+        return to_numpy(p);
+      })
       .def("lattice_edges", [](const larap::Deformer& d) {
         const auto& e = d.lattice().edges;
         py::array_t<int32_t> a({py::ssize_t(e.size()), py::ssize_t(2)});

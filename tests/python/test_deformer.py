@@ -250,3 +250,33 @@ def test_tolerance_stops_when_converged(tube):
     assert np.abs(Y - X).max() < 1e-3 * diagonal(V)
     with pytest.raises(ValueError):
         d.solve(T, tol=-1.0)
+
+
+def test_one_deformer_from_several_threads(tube):
+    """Calls from several Python threads are serialised, never a crash or a torn result."""
+    import threading
+    V, F = tube
+    d = larap.Deformer(V, F, cells=1000)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    ref = d.solve(T, iterations=3)
+    d.reset()
+    errors, results = [], []
+
+    def work(k):
+        try:
+            for _ in range(5):
+                if k % 2:
+                    d.weights = "bspline" if d.weights == "trilinear" else "trilinear"
+                results.append(d.solve(T, iterations=3))
+                d.stats
+        except Exception as exc:  # pragma: no cover - a failure is reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    assert all(np.isfinite(r).all() and r.shape == ref.shape for r in results)

@@ -16,6 +16,7 @@
 #include <larap/mesh.h>
 
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -78,6 +79,9 @@ class Deformer {
   std::string device() const;
   const SolveStats& stats() const { return stats_; }
   const Binding& binding() const;
+  // Callers that use one Deformer from several threads lock this around each call (the Python
+  // module does); the class itself is not thread-safe.
+  std::mutex& mutex() const { return mutex_; }
   // Why device "auto" runs on the CPU although CUDA was tried (empty otherwise).
   const std::string& fallback_reason() const { return fallback_; }
 
@@ -99,6 +103,7 @@ class Deformer {
   bool handles_set_ = false;
   bool auto_device_ = false;
   std::string fallback_;
+  mutable std::mutex mutex_;
   SolveStats stats_;
 };
 

@@ -81,6 +81,11 @@ class Backend {
   // out (#V by 3, row-major) = rest vertices + W (pose - rest lattice); W from `binding`.
   virtual void transfer(const Binding& binding, double* out, SolveStats& stats) = 0;
   virtual void transfer(const Binding& binding, float* out, SolveStats& stats) = 0;
+  // The same transfer into a #V by 3 float32 row-major buffer that stays on the device, owned by
+  // the backend and valid until its next transfer or destruction. nullptr: no device (the CPU).
+  virtual const float* transfer_on_device(const Binding& /*binding*/, SolveStats& /*stats*/) {
+    return nullptr;
+  }
 };
 
 std::unique_ptr<Backend> make_cpu_backend(const Lattice& lattice, const RowMatrixX3d& vertices);

@@ -173,8 +173,7 @@ void Deformer::solve(const double* targets, int iterations, float* out, double t
   solve_impl(targets, iterations, out, tolerance);
 }
 
-template <typename T>
-void Deformer::solve_impl(const double* targets, int iterations, T* out, double tolerance) {
+bool Deformer::pose_lattice(const double* targets, int iterations, double tolerance) {
   if (!handles_set_) throw StateError("solve() needs set_handles() first");
   if (iterations < 0 || iterations > 100000)
     throw InvalidInput("iterations must be between 0 and 100000, got " + std::to_string(iterations));
@@ -186,13 +185,7 @@ void Deformer::solve_impl(const double* targets, int iterations, T* out, double 
       throw InvalidInput("target " + std::to_string(k / 3) + " has a non-finite coordinate");
   const auto t0 = Clock::now();
   stats_.clear_solve();
-  const int64_t n = mesh_.num_vertices();
-  if (m == 0) {  // no handles: the rest pose
-    for (int64_t i = 0; i < n; ++i)
-      for (int c = 0; c < 3; ++c) out[3 * i + c] = static_cast<T>(mesh_.vertices(i, c));
-    stats_.ms_total = ms_since(t0);
-    return;
-  }
+  if (m == 0) return false;
   const Eigen::Map<const RowMatrixX3d> T3(targets, m, 3);
   const RowMatrixX3d tgt = T3;
 
@@ -240,8 +233,32 @@ void Deformer::solve_impl(const double* targets, int iterations, T* out, double 
     backend_->iterate(tgt, iterations, stats_);
     stats_.iterations = iterations;
   }
-  backend_->transfer(binding(), out, stats_);
   stats_.ms_total = ms_since(t0);
+  return true;
+}
+
+template <typename T>
+void Deformer::solve_impl(const double* targets, int iterations, T* out, double tolerance) {
+  const auto t0 = Clock::now();
+  if (!pose_lattice(targets, iterations, tolerance)) {  // no handles: the rest pose
+    const int64_t n = mesh_.num_vertices();
+    for (int64_t i = 0; i < n; ++i)
+      for (int c = 0; c < 3; ++c) out[3 * i + c] = static_cast<T>(mesh_.vertices(i, c));
+  } else {
+    backend_->transfer(binding(), out, stats_);
+  }
+  stats_.ms_total = ms_since(t0);
+}
+
+const float* Deformer::solve_on_device(const double* targets, int iterations, double tolerance) {
+  if (backend_->name() == "cpu")
+    throw DeviceError("solve_on_device needs the CUDA backend; this Deformer runs on the CPU");
+  const auto t0 = Clock::now();
+  pose_lattice(targets, iterations, tolerance);  // no handles: the lattice stays at rest
+  const float* p = backend_->transfer_on_device(binding(), stats_);
+  if (!p) throw DeviceError("this backend cannot leave the positions on the device");
+  stats_.ms_total = ms_since(t0);
+  return p;
 }
 
 std::vector<std::string> available_devices() {

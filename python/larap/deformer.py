@@ -149,6 +149,20 @@ class Deformer:
                 raise ValueError("out must be C-contiguous and writeable")
         return self._core.solve(T, int(iterations), out, 0.0 if tol is None else tol)
 
+    def solve_on_device(self, targets, iterations: int = 5, *, tol=None):
+        """The same solve, leaving the positions on the GPU (device="cuda" only): returns a
+        DeviceArray, (n, 3) float32 in device memory owned by this Deformer and valid until its
+        next solve, with __cuda_array_interface__ (cupy.asarray / torch.as_tensor read it without a
+        copy). RuntimeError on the CPU backend."""
+        if not self._handles_set:
+            raise RuntimeError("solve_on_device() needs set_handles() first")
+        if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
+            raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
+        if tol is not None:
+            tol = _positive_float("tol", tol)
+        T = _points("targets", targets, rows=len(self._core.handles))
+        return self._core.solve_on_device(T, int(iterations), 0.0 if tol is None else tol)
+
     def reset(self) -> None:
         """Forget the pose: the next solve starts from the rest lattice."""
         self._core.reset()

@@ -84,6 +84,29 @@ py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out,
   return result;
 }
 
+// Positions left on the GPU: a (n, 3) float32 array in device memory owned by the Deformer,
+// valid until its next solve. Exposes __cuda_array_interface__ (CuPy, PyTorch, Numba read it
+// without a copy).
+struct DeviceArray {
+  uintptr_t ptr = 0;
+  int64_t rows = 0;
+  py::object owner;  // keeps the Deformer alive
+};
+
+DeviceArray solve_on_device(py::object self, F64 targets, int iterations, double tolerance) {
+  auto& d = self.cast<larap::Deformer&>();
+  const int64_t m = static_cast<int64_t>(d.handles().size());
+  require_rows3(targets.request(), "targets", m);
+  const double* t = targets.data();
+  const float* p = nullptr;
+  {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(d.mutex());
+    p = d.solve_on_device(t, iterations, tolerance);
+  }
+  return DeviceArray{reinterpret_cast<uintptr_t>(p), d.mesh().num_vertices(), self};
+}
+
 py::dict stats(const larap::Deformer& d) {
   larap::SolveStats s;
   {
@@ -123,6 +146,8 @@ void bind_deformer(py::module_& m) {
              d.set_handles(v);
            })
       .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none(),
+           py::arg("tolerance") = 0.0)
+      .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0)
       .def("reset", [](larap::Deformer& d) {
         py::gil_scoped_release release;
@@ -191,6 +216,24 @@ void bind_deformer(py::module_& m) {
         std::vector<double> w(b.stencil_size());
         b.weights_of(d.lattice(), v, ids.data(), w.data());
         return py::make_tuple(ids, w);
+      });
+  py::class_<DeviceArray>(m, "DeviceArray")
+      .def_property_readonly("ptr", [](const DeviceArray& a) { return a.ptr; })
+      .def_property_readonly("shape", [](const DeviceArray& a) { return py::make_tuple(a.rows, 3); })
+      .def_property_readonly("dtype", [](const DeviceArray&) { return py::dtype::of<float>(); })
+      .def_property_readonly("__cuda_array_interface__", [](const DeviceArray& a) {
+        py::dict d;
+        d["shape"] = py::make_tuple(a.rows, 3);
+        d["typestr"] = "<f4";
+        d["data"] = py::make_tuple(a.ptr, false);
+        d["version"] = 3;
+        d["strides"] = py::none();
+        // Written on the engine's stream and synchronised before solve_on_device returns.
+        d["stream"] = py::none();
+        return d;
+      })
+      .def("__repr__", [](const DeviceArray& a) {
+        return "<larap.DeviceArray (" + std::to_string(a.rows) + ", 3) float32 on the GPU>";
       });
   m.def("available_devices", &larap::available_devices);
   m.def("set_num_threads", [](int n) {

@@ -140,3 +140,11 @@ def test_weights_and_gamma_setters_validate():
         d.gamma = -1
     d.gamma = 0.5
     assert d.gamma == 0.5
+
+
+def test_solve_on_device_needs_cuda():
+    d = bound()
+    if d.device == "cuda":
+        pytest.skip("runs on a GPU")
+    with pytest.raises(RuntimeError, match="CUDA"):
+        d.solve_on_device(V0[:5])

@@ -68,6 +68,10 @@ class Deformer {
   // an iteration lowers the energy by less than tolerance * energy (converged).
   void solve(const double* targets, int iterations, double* out, double tolerance = 0.0);
   void solve(const double* targets, int iterations, float* out, double tolerance = 0.0);
+  // The same solve, leaving the positions on the GPU: returns the device address of a #V by 3
+  // float32 row-major array owned by the Deformer, valid until the next solve. Throws
+  // DeviceError on the CPU backend.
+  const float* solve_on_device(const double* targets, int iterations, double tolerance = 0.0);
 
   const Lattice& lattice() const { return lattice_; }
   const PolygonMesh& mesh() const { return mesh_; }
@@ -88,6 +92,8 @@ class Deformer {
  private:
   template <typename T>
   void solve_impl(const double* targets, int iterations, T* out, double tolerance);
+  // Validation, warm start and iterations of a solve; false when there are no handles.
+  bool pose_lattice(const double* targets, int iterations, double tolerance);
   void prepare_handles();
 
   PolygonMesh mesh_;

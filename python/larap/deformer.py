@@ -133,13 +133,7 @@ class Deformer:
         float64 array written in place and returned (float32 suits Blender's foreach_set).
         `tol`: iterate until an iteration lowers the energy by less than tol * energy, at most
         `iterations` times (stats["iterations"] says how many ran); for converged final poses."""
-        if not self._handles_set:
-            raise RuntimeError("solve() needs set_handles() first")
-        if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
-            raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
-        if tol is not None:
-            tol = _positive_float("tol", tol)
-        T = _points("targets", targets, rows=len(self._core.handles))
+        T, iterations, tol = self._solve_args("solve", targets, iterations, tol)
         if out is not None:
             if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float64):
                 raise TypeError("out must be a float32 or float64 numpy array")
@@ -147,21 +141,24 @@ class Deformer:
                 raise ValueError(f"out should have shape ({self._n}, 3), shape is {out.shape}")
             if not out.flags.c_contiguous or not out.flags.writeable:
                 raise ValueError("out must be C-contiguous and writeable")
-        return self._core.solve(T, int(iterations), out, 0.0 if tol is None else tol)
+        return self._core.solve(T, iterations, out, tol)
 
     def solve_on_device(self, targets, iterations: int = 5, *, tol=None):
         """The same solve, leaving the positions on the GPU (device="cuda" only): returns a
         DeviceArray, (n, 3) float32 in device memory owned by this Deformer and valid until its
         next solve, with __cuda_array_interface__ (cupy.asarray / torch.as_tensor read it without a
         copy). RuntimeError on the CPU backend."""
+        T, iterations, tol = self._solve_args("solve_on_device", targets, iterations, tol)
+        return self._core.solve_on_device(T, iterations, tol)
+
+    def _solve_args(self, what, targets, iterations, tol):
+        """Checked (targets (m, 3) float64, iterations, tolerance) of a solve call."""
         if not self._handles_set:
-            raise RuntimeError("solve_on_device() needs set_handles() first")
+            raise RuntimeError(f"{what}() needs set_handles() first")
         if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
             raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
-        if tol is not None:
-            tol = _positive_float("tol", tol)
-        T = _points("targets", targets, rows=len(self._core.handles))
-        return self._core.solve_on_device(T, int(iterations), 0.0 if tol is None else tol)
+        tol = 0.0 if tol is None else _positive_float("tol", tol)
+        return _points("targets", targets, rows=len(self._core.handles)), int(iterations), tol
 
     def reset(self) -> None:
         """Forget the pose: the next solve starts from the rest lattice."""

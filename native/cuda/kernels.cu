@@ -637,6 +637,77 @@ __global__ void __launch_bounds__(kBlock) bspline_kernel(int64_t v0, int64_t v1,
   stage_out(sh, out + 3 * b0, cnt, vec);
 }
 
+// Several vertices per thread (VPT, vertices b0 + k kBlock + threadIdx.x: each k coalesced), the
+// loads of all of them issued phase by phase so that VPT independent chains packed -> corners ->
+// displacements are in flight at once. Stream: packed and V (read once) with __ldcs, out with
+// __stcs (evict-first), so that the gathered tables (cell corners, displacements) keep L2.
+template <bool Stream, typename T>
+__device__ __forceinline__ T ld_once(const T* p) {
+  if constexpr (Stream) return __ldcs(p);
+  else return __ldg(p);
+}
+template <bool Stream, typename T>
+__device__ __forceinline__ void st_once(T* p, T v) {
+  if constexpr (Stream) __stcs(p, v);
+  else *p = v;
+}
+
+template <typename T, int VPT, bool Stream>
+__global__ void __launch_bounds__(kBlock) trilinear_ilp_kernel(int64_t v0, int64_t v1,
+                                                               const float4* __restrict__ packed,
+                                                               const int4* __restrict__ cell_nodes,
+                                                               const float4* __restrict__ disp,
+                                                               const T* __restrict__ V, T* __restrict__ out) {
+  const int64_t b0 = v0 + int64_t(blockIdx.x) * (kBlock * VPT) + threadIdx.x;
+  float4 pk[VPT];
+  T vv[VPT][3];
+#pragma unroll
+  for (int k = 0; k < VPT; ++k) {
+    const int64_t v = b0 + int64_t(k) * kBlock;
+    if (v < v1) {
+      pk[k] = ld_once<Stream>(packed + v);
+#pragma unroll
+      for (int c = 0; c < 3; ++c) vv[k][c] = ld_once<Stream>(V + 3 * v + c);
+    } else {
+      pk[k] = make_float4(0.f, 0.f, 0.f, 0.f);  // cell 0 (int bits of 0.f): a valid, unused gather
+#pragma unroll
+      for (int c = 0; c < 3; ++c) vv[k][c] = T(0);
+    }
+  }
+  int ids[VPT][8];
+#pragma unroll
+  for (int k = 0; k < VPT; ++k) {
+    const int c = __float_as_int(pk[k].x);
+    const int4 n0 = __ldg(cell_nodes + 2 * c), n1 = __ldg(cell_nodes + 2 * c + 1);
+    ids[k][0] = n0.x; ids[k][1] = n0.y; ids[k][2] = n0.z; ids[k][3] = n0.w;
+    ids[k][4] = n1.x; ids[k][5] = n1.y; ids[k][6] = n1.z; ids[k][7] = n1.w;
+  }
+  float4 d[VPT][8];
+#pragma unroll
+  for (int k = 0; k < VPT; ++k)
+#pragma unroll
+    for (int j = 0; j < 8; ++j) d[k][j] = __ldg(disp + ids[k][j]);
+#pragma unroll
+  for (int k = 0; k < VPT; ++k) {
+    const float fx = pk[k].y, fy = pk[k].z, fz = pk[k].w;
+    const float wx[2] = {1.f - fx, fx}, wy[2] = {1.f - fy, fy}, wz[2] = {1.f - fz, fz};
+    float ax = 0.f, ay = 0.f, az = 0.f;
+#pragma unroll
+    for (int j = 0; j < 8; ++j) {
+      const float w = wx[j & 1] * wy[(j >> 1) & 1] * wz[j >> 2];
+      ax += w * d[k][j].x;
+      ay += w * d[k][j].y;
+      az += w * d[k][j].z;
+    }
+    const int64_t v = b0 + int64_t(k) * kBlock;
+    if (v < v1) {
+      st_once<Stream>(out + 3 * v, vv[k][0] + T(ax));
+      st_once<Stream>(out + 3 * v + 1, vv[k][1] + T(ay));
+      st_once<Stream>(out + 3 * v + 2, vv[k][2] + T(az));
+    }
+  }
+}
+
 __global__ void probe_kernel() {}
 
 }  // namespace
@@ -700,29 +771,46 @@ void launch_displacement(const System& s, float4* disp, cudaStream_t st) {
   if (s.n) displacement_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, disp);
 }
 
+template <typename T>
+void transfer_trilinear(int64_t v0, int64_t v1, const float4* packed, const int* cell_nodes,
+                        const float4* disp, const T* V, T* out, const TransferVariant& tv, cudaStream_t st) {
+  if (v1 <= v0) return;
+  const int4* cn = reinterpret_cast<const int4*>(cell_nodes);
+  if (tv.mode == kTransferIlp) {
+    const int vpt = tv.vpt >= 4 ? 4 : tv.vpt >= 2 ? 2 : 1;
+    const int blocks = int((v1 - v0 + int64_t(kBlock) * vpt - 1) / (int64_t(kBlock) * vpt));
+    auto k = tv.stream ? (vpt == 4 ? trilinear_ilp_kernel<T, 4, true> : vpt == 2 ? trilinear_ilp_kernel<T, 2, true>
+                                                                                : trilinear_ilp_kernel<T, 1, true>)
+                       : (vpt == 4 ? trilinear_ilp_kernel<T, 4, false> : vpt == 2 ? trilinear_ilp_kernel<T, 2, false>
+                                                                                 : trilinear_ilp_kernel<T, 1, false>);
+    k<<<blocks, kBlock, 0, st>>>(v0, v1, packed, cn, disp, V, out);
+    return;
+  }
+  (tv.mode == kTransferStaged ? trilinear_kernel<T, true> : trilinear_kernel<T, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+      v0, v1, packed, cn, disp, V, out);
+}
+
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const float* V,
-                               float* out, bool staged, cudaStream_t st) {
-  if (v1 > v0)
-    (staged ? trilinear_kernel<float, true> : trilinear_kernel<float, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(
-        v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
+                               float* out, const TransferVariant& tv, cudaStream_t st) {
+  transfer_trilinear(v0, v1, packed, cell_nodes, disp, V, out, tv, st);
 }
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const double* V,
-                               double* out, bool staged, cudaStream_t st) {
-  if (v1 > v0)
-    (staged ? trilinear_kernel<double, true> : trilinear_kernel<double, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(
-        v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
+                               double* out, const TransferVariant& tv, cudaStream_t st) {
+  transfer_trilinear(v0, v1, packed, cell_nodes, disp, V, out, tv, st);
 }
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const float* V, float* out,
-                             bool staged, cudaStream_t st) {
+                             const TransferVariant& tv, cudaStream_t st) {
+  const bool staged = tv.mode == kTransferStaged;
   if (v1 > v0)
     (staged ? bspline_kernel<float, true> : bspline_kernel<float, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
 }
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const double* V, double* out,
-                             bool staged, cudaStream_t st) {
+                             const TransferVariant& tv, cudaStream_t st) {
+  const bool staged = tv.mode == kTransferStaged;
   if (v1 > v0)
     (staged ? bspline_kernel<double, true> : bspline_kernel<double, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
 }

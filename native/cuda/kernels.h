@@ -101,20 +101,30 @@ void launch_handle_positions(const System& s, float4* out, cudaStream_t st);
 void launch_displacement(const System& s, float4* disp, cudaStream_t st);
 
 // Transfer: out[3 v + c] = V[3 v + c] + sum_k w_k disp[id_k], v in [v0, v1). packed[v] =
-// (base cell / node id as int bits, 3 fractions): one 16-byte load per vertex. staged: V and out
-// go through shared memory with 16-byte loads/stores (else 3 scalar loads/stores per vertex).
+// (base cell / node id as int bits, 3 fractions): one 16-byte load per vertex. Variants
+// (LARAP_CUDA_TRANSFER): mode kTransferScalar: one vertex per thread, 3 scalar loads/stores;
+// kTransferStaged: V and out through shared memory with 16-byte accesses; kTransferIlp: vpt
+// vertices per thread (trilinear only; B-spline uses the scalar kernel), all their loads issued
+// before the first use (packed + V, then the cell corners, then the 8 displacements), and with
+// stream = true read-once data (packed, V) read and out written with streaming cache hints.
+enum TransferMode { kTransferScalar = 0, kTransferStaged = 1, kTransferIlp = 2 };
+struct TransferVariant {
+  int mode = kTransferIlp;
+  int vpt = 2;
+  bool stream = false;
+};
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const float* V,
-                               float* out, bool staged, cudaStream_t st);
+                               float* out, const TransferVariant& tv, cudaStream_t st);
 void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
                                const int* cell_nodes, const float4* disp, const double* V,
-                               double* out, bool staged, cudaStream_t st);
+                               double* out, const TransferVariant& tv, cudaStream_t st);
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const float* V, float* out,
-                             bool staged, cudaStream_t st);
+                             const TransferVariant& tv, cudaStream_t st);
 void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
                              const int* node27, const float4* disp, const double* V, double* out,
-                             bool staged, cudaStream_t st);
+                             const TransferVariant& tv, cudaStream_t st);
 
 // Can this build's kernels run on the current device? (no image for its architecture, ...)
 cudaError_t probe_kernels();

@@ -16,8 +16,9 @@
 //                       0: one graph (or plain launches) per flip-flop
 //   LARAP_CUDA_COOP_BLOCKS  blocks of the fused kernel (default: enough for one node per thread,
 //                       at least one per SM, at most what can be co-resident)
-//   LARAP_CUDA_TRANSFER scalar (default) | staged (16-byte loads/stores through shared memory;
-//                       measured slower on the H200, kept for comparison)
+//   LARAP_CUDA_TRANSFER transfer kernel: scalar (default) | staged (16-byte loads/stores through
+//                       shared memory) | ilp1 | ilp2 | ilp4 (vertices per thread, loads issued
+//                       together; suffix s: streaming cache hints); docs/cuda.md
 //   LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES  tests: device allocations fail (MemoryError) once the
 //                       process's live device bytes would exceed this
 #ifdef LARAP_WITH_CUDA
@@ -42,6 +43,9 @@
 
 namespace larap {
 namespace {
+
+// Transfer kernel when LARAP_CUDA_TRANSFER is unset (docs/results-gpu.md has the measurements).
+constexpr const char* kDefaultTransfer = "scalar";
 
 using Clock = std::chrono::steady_clock;
 double ms_since(Clock::time_point t0) {
@@ -309,10 +313,22 @@ class CudaBackend final : public Backend {
     coop_blocks_env_ = env_int("LARAP_CUDA_COOP_BLOCKS", 0);
     {
       const char* tv = std::getenv("LARAP_CUDA_TRANSFER");
-      const std::string tn = tv ? tv : "";
-      if (tn != "" && tn != "staged" && tn != "scalar")
-        throw InvalidInput("LARAP_CUDA_TRANSFER must be staged or scalar, got '" + tn + "'");
-      staged_ = tn == "staged";  // scalar by default: staged measured slower (docs/results-gpu.md)
+      const std::string tn = tv && *tv ? tv : kDefaultTransfer;
+      cuda::TransferVariant v;
+      if (tn == "scalar") {
+        v.mode = cuda::kTransferScalar;
+      } else if (tn == "staged") {
+        v.mode = cuda::kTransferStaged;
+      } else if ((tn.size() == 4 || (tn.size() == 5 && tn[4] == 's')) && tn.compare(0, 3, "ilp") == 0 &&
+                 (tn[3] == '1' || tn[3] == '2' || tn[3] == '4')) {
+        v.mode = cuda::kTransferIlp;
+        v.vpt = tn[3] - '0';
+        v.stream = tn.size() == 5;
+      } else {
+        throw InvalidInput("LARAP_CUDA_TRANSFER must be scalar, staged, ilp1, ilp2, ilp4, ilp1s, ilp2s or "
+                           "ilp4s, got '" + tn + "'");
+      }
+      transfer_ = v;
     }
     inner_env_ = std::getenv("LARAP_CUDA_INNER") && *std::getenv("LARAP_CUDA_INNER");
     const char* p = std::getenv("LARAP_CUDA_PROFILE");
@@ -608,6 +624,21 @@ class CudaBackend final : public Backend {
   }
 
   void transfer(const Binding& b, double* out, SolveStats& stats) override { transfer_any(b, out, stats); }
+
+  // The transfer into the device output buffer, left there (no copy to the host).
+  const float* transfer_on_device(const Binding& b, SolveStats& stats) override {
+    const auto t0 = Clock::now();
+    const int64_t nv = b.num_vertices();
+    DevBinding& d = device_binding(b);
+    const float* V = device_vertices(static_cast<float*>(nullptr));
+    float* dout = device_out(static_cast<float*>(nullptr), size_t(3 * nv));
+    cuda::launch_displacement(sys_, disp_.get(), stream_);
+    LARAP_CK(cudaGetLastError());
+    launch_transfer(b, d, 0, nv, V, dout);
+    LARAP_CK(cudaStreamSynchronize(stream_));  // consumers on other streams may read it now
+    stats.ms_transfer += ms_since(t0);
+    return dout;
+  }
   void transfer(const Binding& b, float* out, SolveStats& stats) override { transfer_any(b, out, stats); }
 
  private:
@@ -785,9 +816,9 @@ class CudaBackend final : public Backend {
   template <typename T>
   void launch_transfer(const Binding& b, DevBinding& d, int64_t v0, int64_t v1, const T* V, T* out) {
     if (b.kind == WeightKind::Trilinear)
-      cuda::launch_transfer_trilinear(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, staged_, stream_);
+      cuda::launch_transfer_trilinear(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, transfer_, stream_);
     else
-      cuda::launch_transfer_bspline(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, staged_, stream_);
+      cuda::launch_transfer_bspline(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, transfer_, stream_);
     LARAP_CK(cudaGetLastError());
   }
 
@@ -802,13 +833,20 @@ class CudaBackend final : public Backend {
     T* stage = reinterpret_cast<T*>(staging_.reserve(size_t(3 * nv) * sizeof(T)));
     cuda::launch_displacement(sys_, disp_.get(), stream_);
     LARAP_CK(cudaGetLastError());
-    double kernel_ms = -1.0;
+    double kernel_ms = -1.0, kernel_rep_ms = -1.0;
     if (!profile_path_.empty()) {  // kernel alone, timed (then the pipeline below repeats it)
       LARAP_CK(cudaEventRecord(ev_[0].get(), stream_));
       launch_transfer(b, d, 0, nv, V, dout);
       LARAP_CK(cudaEventRecord(ev_[1].get(), stream_));
       LARAP_CK(cudaEventSynchronize(ev_[1].get()));
       kernel_ms = elapsed_ms(ev_[0], ev_[1]);
+      // and the mean of kRep back-to-back launches (no launch gap between events and kernel)
+      constexpr int kRep = 10;
+      LARAP_CK(cudaEventRecord(ev_[0].get(), stream_));
+      for (int r = 0; r < kRep; ++r) launch_transfer(b, d, 0, nv, V, dout);
+      LARAP_CK(cudaEventRecord(ev_[1].get(), stream_));
+      LARAP_CK(cudaEventSynchronize(ev_[1].get()));
+      kernel_rep_ms = elapsed_ms(ev_[0], ev_[1]) / kRep;
     }
     // Pipeline: chunk c is computed, copied to pinned memory, and copied on to `out` by the host
     // while the device works on chunk c + 1.
@@ -832,6 +870,7 @@ class CudaBackend final : public Backend {
     stats.ms_transfer += ms;
     if (!profile_path_.empty())
       write_profile("transfer", 0, {{"kernel_ms", kernel_ms},
+                                    {"kernel_rep_ms", kernel_rep_ms},
                                     {"pipeline_ms", ms_since(t1)},
                                     {"total_ms", ms},
                                     {"vertices", double(nv)},
@@ -860,7 +899,7 @@ class CudaBackend final : public Backend {
   bool use_graph_ = true;
   bool use_fused_ = true;
   int coop_blocks_env_ = 0;
-  bool staged_ = false;
+  cuda::TransferVariant transfer_;
   bool inner_env_ = false;
   int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
   std::string profile_path_;

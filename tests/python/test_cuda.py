@@ -276,3 +276,54 @@ def test_auto_falls_back_when_set_handles_runs_out(monkeypatch):
     assert np.abs(d.lattice_deformed() - d.lattice_rest()).max() < 1e-4 * diag(V)  # pose kept
     X = d.solve(bend_targets(V, h, nl), iterations=5)
     assert np.isfinite(X).all() and np.abs(X0 - V).max() < 1e-4 * diag(V)
+
+
+@need_cuda
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_transfer_variants_agree(weights, monkeypatch):
+    # Every LARAP_CUDA_TRANSFER kernel gives the scalar kernel's vertices, float32 and float64,
+    # including the partial last block (the vertex count is no multiple of 256 * 4).
+    V, F, h, nl = tube_model()
+    assert len(V) % 1024 != 0
+    T = bend_targets(V, h, nl)
+    d = larap.Deformer(V, F, cells=1500, weights=weights, device="cuda")
+    d.set_handles(h)
+    d.solve(T, iterations=4)       # one pose for all (the solver's float atomics are not bitwise
+    res = {}                       # reproducible run to run); iterations=0: transfer only
+    for mode in ["scalar", "staged", "ilp1", "ilp2", "ilp4", "ilp2s", "ilp4s"]:
+        monkeypatch.setenv("LARAP_CUDA_TRANSFER", mode)
+        d.set_handles(h)           # reads the knob; the pose is kept
+        X64 = d.solve(T, iterations=0)
+        X32 = d.solve(T, iterations=0, out=np.empty(V.shape, np.float32))
+        res[mode] = (X64, X32)
+    ref64, ref32 = res["scalar"]
+    for mode, (X64, X32) in res.items():
+        assert np.abs(X64 - ref64).max() < 1e-6 * diag(V), mode
+        assert np.abs(X32.astype(float) - ref32).max() < 1e-6 * diag(V), mode
+    monkeypatch.setenv("LARAP_CUDA_TRANSFER", "ilp3")
+    with pytest.raises(ValueError, match="LARAP_CUDA_TRANSFER"):
+        larap.Deformer(V, F, cells=1500, device="cuda").set_handles(h)
+
+
+@need_cuda
+def test_solve_on_device_matches_the_host_copy():
+    V, F, h, nl = tube_model()
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    d.set_handles(h)
+    T = bend_targets(V, h, nl)
+    dev = d.solve_on_device(T, iterations=10)
+    assert dev.shape == (len(V), 3)
+    cai = dev.__cuda_array_interface__
+    assert cai["typestr"] == "<f4" and cai["data"][0] == dev.ptr and cai["shape"] == (len(V), 3)
+    try:
+        import torch
+        got = torch.as_tensor(dev, device="cuda").cpu().numpy()
+    except ImportError:
+        try:
+            import cupy
+            got = cupy.asnumpy(cupy.asarray(dev))
+        except ImportError:
+            pytest.skip("neither torch nor cupy can read __cuda_array_interface__ here")
+    host = d.solve(T, iterations=0, out=np.empty((len(V), 3), np.float32))  # same pose, via the host
+    assert np.abs(got - host).max() < 1e-5 * diag(V)
+    assert np.linalg.norm(got[h] - T, axis=1).max() < 0.05 * diag(V)

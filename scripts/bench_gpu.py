@@ -295,6 +295,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="bench_gpu.json")
     ap.add_argument("--quick", action="store_true", help="small configurations only")
+    ap.add_argument("--configs", help="faces:nodes[:sweep],... instead of the default set "
+                    "(sweep=1 also compares the solvers), e.g. 1700000:20000")
     args = ap.parse_args()
     if "cuda" not in larap.available_devices():
         raise SystemExit("no usable CUDA device: larap.available_devices() == %r" % larap.available_devices())
@@ -308,8 +310,13 @@ def main():
         info["nvidia_smi"] = f"n/a ({exc})"
     info["d2d_copy_GBps"] = d2d_bandwidth()
     configs = [(17_000, 5_000, True), (170_000, 10_000, False), (1_700_000, 10_000, True),
-               (2_000_000, 40_000, True)]
-    if args.quick:
+               (1_700_000, 20_000, False), (2_000_000, 40_000, True)]
+    if args.configs:
+        configs = []
+        for item in args.configs.split(","):
+            parts = [int(x) for x in item.split(":")]
+            configs.append((parts[0], parts[1], bool(parts[2]) if len(parts) > 2 else False))
+    elif args.quick:
         configs = [(17_000, 5_000, True), (170_000, 10_000, False)]
     results = {"info": info, "configs": []}
     for faces, nodes, sweep in configs:

@@ -36,3 +36,18 @@ def shared_meshes():
     if not os.path.isdir(SHARED_MESHES):
         pytest.skip(f"public meshes not present at {SHARED_MESHES}")
     return SHARED_MESHES
+
+
+@pytest.fixture(params=["cpu", "cuda"])
+def device(request):
+    """Every solver test runs on each backend: the CPU always, CUDA where a GPU is usable."""
+    import larap
+
+    if request.param not in larap.available_devices():
+        pytest.skip(f"no usable CUDA device here (larap.available_devices() == {larap.available_devices()})")
+    return request.param
+
+
+def tol(device, cpu, cuda):
+    """Tolerance for a backend: the CUDA path computes in float32."""
+    return cpu if device == "cpu" else cuda

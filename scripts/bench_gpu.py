@@ -13,7 +13,7 @@ Per configuration (mesh faces, lattice nodes; the paper's Table 1 sizes):
   * the transfer kernel's achieved bandwidth vs a measured device-to-device copy;
   * the whole solve including the copy of the float32 positions to a host numpy array.
 Then a solver comparison (two-level mg / Jacobi PCG, inner iteration counts, coarse size;
-BENCH_SWEEP=solver:inner[:coarse],... overrides) on three configs.
+BENCH_SWEEP=solver:inner[:coarse[:levels]],... overrides) on three configs.
 """
 from __future__ import annotations
 
@@ -167,7 +167,9 @@ def run_config(faces, nodes, reps=5, solver_sweep=False, cpu_iters=30):
     set_env(LARAP_CUDA_SOLVER=None, LARAP_CUDA_INNER=None, LARAP_CUDA_PROFILE=None)
     dg = make(V, F, cells, "cuda")
     assert dg.device == "cuda" and dg.num_nodes == res["nodes"]
+    t_sh = time.time()
     dg.set_handles(h)
+    res["gpu_set_handles_s"] = time.time() - t_sh
     gpu_warmup(dg, T1, out32)
     dg.reset()
     dg.solve(T1, 30, out=out32)
@@ -244,10 +246,14 @@ def run_config(faces, nodes, reps=5, solver_sweep=False, cpu_iters=30):
         sweep = []
         # solver:inner[:max coarse nodes]
         spec = os.environ.get("BENCH_SWEEP", "pcg:8,pcg:32,mg:1,mg:2,mg:3,mg:4,mg:2:512,mg:2:4096")
-        combos = [(a.split(":")[0], int(a.split(":")[1]), a.split(":")[2] if a.count(":") == 2 else None)
-                  for a in spec.split(",")]
-        for solver, inner, coarse in combos:
-            set_env(LARAP_CUDA_SOLVER=solver, LARAP_CUDA_INNER=inner, LARAP_CUDA_MG_COARSE=coarse)
+        # solver:inner[:coarse[:levels]] (coarse may be empty: the default)
+        combos = []
+        for a in spec.split(","):
+            f = a.split(":") + [None, None]
+            combos.append((f[0], int(f[1]), f[2] or None, f[3] or None))
+        for solver, inner, coarse, levels in combos:
+            set_env(LARAP_CUDA_SOLVER=solver, LARAP_CUDA_INNER=inner, LARAP_CUDA_MG_COARSE=coarse,
+                    LARAP_CUDA_MG_LEVELS=levels)
             t_sh = time.time()
             dg.set_handles(h)
             t_sh = time.time() - t_sh
@@ -258,11 +264,13 @@ def run_config(faces, nodes, reps=5, solver_sweep=False, cpu_iters=30):
             E = dg.stats["energy"]
             k = first_within(E, E_ref)
             per = dg.stats["ms_solve"] / 100
-            sweep.append({"solver": solver, "inner": inner, "mg_coarse": coarse, "iters_to_quality": k,
+            sweep.append({"solver": solver, "inner": inner, "mg_coarse": coarse, "mg_levels": levels,
+                          "iters_to_quality": k,
                           "set_handles_s": t_sh,
                           "ms_per_flipflop": per, "ms_to_quality": None if k is None else k * per,
                           "E100_over_Eref": E[-1] / E_ref})
-        set_env(LARAP_CUDA_SOLVER=None, LARAP_CUDA_INNER=None, LARAP_CUDA_MG_COARSE=None)
+        set_env(LARAP_CUDA_SOLVER=None, LARAP_CUDA_INNER=None, LARAP_CUDA_MG_COARSE=None,
+                LARAP_CUDA_MG_LEVELS=None)
         # default solver: fused cooperative kernel (default) vs one graph per flip-flop vs plain
         for key, env in (("gpu_ms_per_iter_unfused_graph", dict(LARAP_CUDA_FUSED=0)),
                          ("gpu_ms_per_iter_plain_launches", dict(LARAP_CUDA_FUSED=0, LARAP_CUDA_GRAPH=0))):
@@ -330,14 +338,14 @@ def main():
         p = r["gpu_profile_trilinear"]
         ach = 40 * r["vertices"] / (p["transfer_kernel_ms_f32"] * 1e-3) / 1e9
         print(f"{r['faces']:>9} faces {r['vertices']:>8} verts {r['nodes']:>6} nodes | "
-              f"q-iters {r['gpu_iters_to_quality']} | warm solve+transfer "
+              f"q-iters {r['gpu_iters_to_quality']} | set_handles {r['gpu_set_handles_s']:.3f}s | warm solve+transfer "
               f"{r['gpu_warm_solve']['ms_solve_device'] + p['transfer_kernel_ms_f32']:.3f} ms (device), "
               f"{r['gpu_warm_solve']['ms_total_incl_host_copy']:.3f} ms (incl. host copy) | "
               f"transfer {p['transfer_kernel_ms_f32'] * 1e3:.1f} us = {ach:.0f} GB/s"
               + (f" ({100 * ach / bw:.0f}% of copy)" if bw else "")
               + f" | cpu/gpu dist {r['gpu_vs_cpu_max_dist_over_diag']:.2e} | {r['wall_s']:.0f}s", flush=True)
         for sw in r.get("solver_sweep", []):
-            print(f"    {sw['solver']:>6} inner {sw['inner']:>2} coarse {sw['mg_coarse']}: {sw['iters_to_quality']} flip-flops, "
+            print(f"    {sw['solver']:>6} inner {sw['inner']:>2} coarse {sw['mg_coarse']} levels {sw['mg_levels']}: {sw['iters_to_quality']} flip-flops, "
                   f"{sw['ms_per_flipflop'] * 1e3:.1f} us each, to quality "
                   f"{'-' if sw['ms_to_quality'] is None else '%.3f ms' % sw['ms_to_quality']}, "
                   f"E100/Eref {sw['E100_over_Eref']:.5f}, set_handles {sw['set_handles_s']:.3f}s", flush=True)

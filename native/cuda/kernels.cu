@@ -170,6 +170,9 @@ __global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
     const int64_t tot = int64_t(s.inner) * s.nc;
     for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot; k += int64_t(gridDim.x) * blockDim.x)
       s.rc[k] = f4(0, 0, 0);
+    const int64_t tot2 = int64_t(s.inner) * s.nc2;
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot2; k += int64_t(gridDim.x) * blockDim.x)
+      s.rc2[k] = f4(0, 0, 0);
   }
   if (i >= s.n) return;
   float4 b = rhs_at(s, i);
@@ -327,12 +330,17 @@ __global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool fina
   mg_a_node(s, i, k, final, k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0));
 }
 
-// Coarse row `row` of zc = Ac^-1 rc[k], by one warp (all 32 lanes call it).
+// Dense coarsest level: rows of it (nc, or nc2 with a third level).
+__device__ __forceinline__ int dense_rows(const System& s) { return s.nc2 > 0 ? s.nc2 : s.nc; }
+
+// Coarse row `row` of zc = Ac^-1 rc[k] (two levels) or zc2 = Ac2^-1 rc2[k] (three), by one warp
+// (all 32 lanes call it).
 __device__ __forceinline__ void coarse_row(const System& s, int row, int lane, int k) {
-  const float* a = s.ainv + int64_t(row) * s.nc;
-  const float4* rc = s.rc + int64_t(k) * s.nc;
+  const int nd = dense_rows(s);
+  const float* a = s.ainv + int64_t(row) * nd;
+  const float4* rc = s.nc2 > 0 ? s.rc2 + int64_t(k) * nd : s.rc + int64_t(k) * nd;
   float ax = 0.f, ay = 0.f, az = 0.f;
-  for (int j = lane; j < s.nc; j += 32) {
+  for (int j = lane; j < nd; j += 32) {
     const float w = a[j];
     const float4 v = rc[j];
     ax += w * v.x; ay += w * v.y; az += w * v.z;
@@ -342,14 +350,61 @@ __device__ __forceinline__ void coarse_row(const System& s, int row, int lane, i
     ay += __shfl_down_sync(kFull, ay, o);
     az += __shfl_down_sync(kFull, az, o);
   }
-  if (lane == 0) s.zc[row] = f4(ax, ay, az);
+  if (lane == 0) (s.nc2 > 0 ? s.zc2 : s.zc)[row] = f4(ax, ay, az);
 }
 
-// B_k: zc = Ac^-1 rc[k] (dense, one warp per row).
+// B_k: dense coarsest product (one warp per row).
 __global__ void __launch_bounds__(kBlock) mg_coarse_kernel(System s, int k) {
   const int row = (blockIdx.x * blockDim.x + threadIdx.x) >> 5, lane = threadIdx.x & 31;
-  if (row >= s.nc) return;
+  if (row >= dense_rows(s)) return;
   coarse_row(s, row, lane, k);
+}
+
+// (Ac1 v)_c with v_j = get(j), CSR.
+template <class F>
+__device__ __forceinline__ float4 coarse_spmv(const System& s, int c, F get) {
+  float4 acc = f4(0, 0, 0);
+  const int q0 = __ldg(s.c_off + c), q1 = __ldg(s.c_off + c + 1);
+  for (int q = q0; q < q1; ++q) acc = acc + __ldg(s.c_val + q) * get(__ldg(s.c_col + q));
+  return acc;
+}
+
+// Third level, A1_k: coarse pre-smoothing y = omega1 Dc^-1 rc[k] and its residual rc - Ac1 y
+// restricted into rc2[k] (atomics); neighbours' y recomputed.
+__device__ __forceinline__ void mg_a1_node(const System& s, int c, int k) {
+  const float4* rc = s.rc + int64_t(k) * s.nc;
+  const float* mi = s.c_minv;
+  const float om = s.omega1;
+  const float4 ay = coarse_spmv(s, c, [&](int j) { return (om * __ldg(mi + j)) * rc[j]; });
+  const float4 r1 = rc[c] - ay;
+  float4* dst = s.rc2 + int64_t(k) * s.nc2 + s.agg2[c];
+  atomicAdd(&dst->x, r1.x);
+  atomicAdd(&dst->y, r1.y);
+  atomicAdd(&dst->z, r1.z);
+}
+
+// Third level, B1_k: z2 = y + P2 zc2; zc = z2 + omega1 Dc^-1 (rc - Ac1 z2) (neighbours' z2
+// recomputed from rc and zc2).
+__device__ __forceinline__ void mg_b1_node(const System& s, int c, int k) {
+  const float4* rc = s.rc + int64_t(k) * s.nc;
+  const float* mi = s.c_minv;
+  const float om = s.omega1;
+  const int* a2 = s.agg2;
+  const float4* zc2 = s.zc2;
+  const float4 az = coarse_spmv(s, c, [&](int j) { return (om * __ldg(mi + j)) * rc[j] + zc2[__ldg(a2 + j)]; });
+  const float4 rcc = rc[c];
+  const float omc = om * mi[c];
+  const float4 z2 = omc * rcc + zc2[a2[c]];
+  s.zc[c] = z2 + omc * (rcc - az);
+}
+
+__global__ void __launch_bounds__(kBlock) mg_a1_kernel(System s, int k) {
+  const int c = blockIdx.x * blockDim.x + threadIdx.x;
+  if (c < s.nc) mg_a1_node(s, c, k);
+}
+__global__ void __launch_bounds__(kBlock) mg_b1_kernel(System s, int k) {
+  const int c = blockIdx.x * blockDim.x + threadIdx.x;
+  if (c < s.nc) mg_b1_node(s, c, k);
 }
 
 // C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); adds (r, z) into v.
@@ -422,6 +477,7 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
       if (threadIdx.x == 0) *s.iter += 1;
     }
     for (int64_t k = tid; k < int64_t(s.inner) * s.nc; k += stride) s.rc[k] = f4(0, 0, 0);
+    for (int64_t k = tid; k < int64_t(s.inner) * s.nc2; k += stride) s.rc2[k] = f4(0, 0, 0);
     for (int i = tid; i < s.n; i += stride) {
       const float4* x = s.x;
       s.r[0][i] = rhs_at(s, i) - spmv_row(s, i, [&](int j) { return x[j]; });
@@ -433,11 +489,20 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
         for (int i = tid; i < s.n; i += stride) mg_a_node(s, i, k, false, al);
       }
       grid.sync();
+      if (s.nc2 > 0) {  // third level: coarse pre-smoothing, restriction to level 2
+        for (int c = tid; c < s.nc; c += stride) mg_a1_node(s, c, k);
+        grid.sync();
+      }
       {
         const int lane = threadIdx.x & 31;
-        for (int row = tid >> 5; row < s.nc; row += stride >> 5) coarse_row(s, row, lane, k);
+        const int nd = dense_rows(s);
+        for (int row = tid >> 5; row < nd; row += stride >> 5) coarse_row(s, row, lane, k);
       }
       grid.sync();
+      if (s.nc2 > 0) {  // third level: prolongation + coarse post-smoothing into zc
+        for (int c = tid; c < s.nc; c += stride) mg_b1_node(s, c, k);
+        grid.sync();
+      }
       {
         double v[3] = {0, 0, 0};
         for (int i = tid; i < s.n; i += stride) mg_c_node(s, i, k, v);
@@ -728,7 +793,9 @@ void launch_cg(const System& s, int k, cudaStream_t st) {
 
 void launch_mg_iteration(const System& s, int k, cudaStream_t st) {
   mg_a_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k, false);
-  mg_coarse_kernel<<<blocks_for(int64_t(s.nc) * 32), kBlock, 0, st>>>(s, k);
+  if (s.nc2 > 0) mg_a1_kernel<<<blocks_for(s.nc), kBlock, 0, st>>>(s, k);
+  mg_coarse_kernel<<<blocks_for(int64_t(s.nc2 > 0 ? s.nc2 : s.nc) * 32), kBlock, 0, st>>>(s, k);
+  if (s.nc2 > 0) mg_b1_kernel<<<blocks_for(s.nc), kBlock, 0, st>>>(s, k);
   mg_c_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
   mg_d_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, k);
 }

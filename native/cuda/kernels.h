@@ -72,6 +72,19 @@ struct System {
   float4* q = nullptr;            // n, A p
   float4* pb[2] = {nullptr, nullptr};  // ping-pong: direction
   float omega = 0.6f;
+  // Third level (nc2 > 0): the coarse system above is then not inverted but preconditioned by
+  // one symmetric two-level cycle of its own (damped Jacobi pre/post-smoothing with omega1 on
+  // the sparse Galerkin operator Ac1 = P^T A P, CSR with its diagonal, and a dense inverse of
+  // Ac2 = P2^T Ac1 P2 in `ainv`, nc2 x nc2; agg2: level-2 id of each coarse node).
+  int nc2 = 0;
+  const int* agg2 = nullptr;      // nc
+  const int* c_off = nullptr;     // nc + 1, Ac1 (CSR, diagonal included)
+  const int* c_col = nullptr;
+  const float* c_val = nullptr;
+  const float* c_minv = nullptr;  // nc, 1 / diag(Ac1)
+  float omega1 = 0.6f;
+  float4* rc2 = nullptr;          // inner * nc2
+  float4* zc2 = nullptr;          // nc2
 };
 
 // Flip-flop stages. `slot`: -1 = add the energy of the current pose with the current rotations

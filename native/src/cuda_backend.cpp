@@ -5,9 +5,11 @@
 //
 // Tuning knobs (environment, read when a backend is made; for benchmarks):
 //   LARAP_CUDA_SOLVER   mg (default, two-level PCG) | pcg | cheby | jacobi
-//   LARAP_CUDA_INNER    inner solver iterations per flip-flop (default for mg: 1 when the coarse
-//                       level is 2x2x2 aggregates, else 2; 8 for the others)
-//   LARAP_CUDA_MG_COARSE  most coarse nodes of mg (default 1536)
+//   LARAP_CUDA_INNER    inner solver iterations per flip-flop (default for mg: 1 with two levels
+//                       of which the coarse one is 2x2x2 aggregates, else 2; 8 for the others)
+//   LARAP_CUDA_MG_COARSE  most nodes of mg's dense coarsest level (default 1536)
+//   LARAP_CUDA_MG_LEVELS  2 | 3 (default: 2 when 2x2x2 aggregates are at most MG_COARSE nodes,
+//                       else 3: 2x2x2 aggregates smoothed on the device, dense level below)
 //   LARAP_CUDA_GRAPH    1 (default): one CUDA graph per flip-flop; 0: plain launches
 //   LARAP_CUDA_PROFILE  a file path: per-stage device times (plain launches, a sync per
 //                       flip-flop) are appended to it as JSON lines, and stats carry them
@@ -335,6 +337,9 @@ class CudaBackend final : public Backend {
     profile_path_ = p ? p : "";
     cheb_ratio_ = std::max(1.0, double(env_int("LARAP_CUDA_CHEBY_RATIO", 50)));
     mg_coarse_max_ = std::clamp(env_int("LARAP_CUDA_MG_COARSE", 1536), 1, 8192);
+    mg_levels_env_ = env_int("LARAP_CUDA_MG_LEVELS", 0);
+    if (mg_levels_env_ != 0 && mg_levels_env_ != 2 && mg_levels_env_ != 3)
+      throw InvalidInput("LARAP_CUDA_MG_LEVELS must be 2 or 3 (unset: automatic)");
     graph_.reset();
     sys_.inner = inner_;
     sys_.dots = dots_.reserve(size_t(inner_ + 1) * 6);
@@ -436,53 +441,91 @@ class CudaBackend final : public Backend {
       lam_min_ = lam_max_ / cheb_ratio_;
     }
     sys_.nc = 0;
+    sys_.nc2 = 0;
     if (solver_ == Solver::MG) build_two_level(A);
     LARAP_CK(cudaStreamSynchronize(stream_));
     ready_ = true;
   }
 
-  // Two-level preconditioner: aggregates = fine nodes with equal (coord >> shift), the smallest
-  // shift >= 1 giving at most LARAP_CUDA_MG_COARSE aggregates; coarse operator P^T A P (P
-  // piecewise constant), inverted densely on the host (double) and uploaded as float.
+  // Aggregation of the fine nodes by (coord >> shift): coarse id of every fine node, count.
+  int aggregate(int shift, std::vector<int>& agg) const {
+    std::unordered_map<int64_t, int> ids;
+    ids.reserve(size_t(n_) / 4 + 16);
+    agg.assign(size_t(n_), 0);
+    for (int i = 0; i < n_; ++i) {
+      const Eigen::Vector3i& c = lat_.node_coords[size_t(i)];
+      const int64_t key = (int64_t(c.x() >> shift) << 42) | (int64_t(c.y() >> shift) << 21) | int64_t(c.z() >> shift);
+      agg[size_t(i)] = ids.emplace(key, int(ids.size())).first->second;
+    }
+    return int(ids.size());
+  }
+
+  // Dense inverse of a small SPD matrix, symmetrised, as float: one Cholesky factorisation, then
+  // the two triangular solves for blocks of 64 identity columns in parallel (OpenMP; Eigen's own
+  // parallelism is off in this project). 0.7-1.1 s serial at nc ~ 1500 before.
+  static std::vector<float> dense_inverse(const Eigen::MatrixXd& Ac) {
+    const int nc = int(Ac.rows());
+    Eigen::LLT<Eigen::MatrixXd> llt(Ac);
+    if (llt.info() != Eigen::Success) throw DeviceError("the coarse lattice system is not positive definite");
+    Eigen::MatrixXd inv(nc, nc);
+    constexpr int kCols = 64;
+    const int nb = (nc + kCols - 1) / kCols;
+#pragma omp parallel for schedule(dynamic)
+    for (int b = 0; b < nb; ++b) {
+      const int c0 = b * kCols, w = std::min(kCols, nc - c0);
+      Eigen::MatrixXd X = Eigen::MatrixXd::Zero(nc, w);
+      for (int k = 0; k < w; ++k) X(c0 + k, k) = 1.0;
+      llt.matrixL().solveInPlace(X);
+      llt.matrixU().solveInPlace(X);
+      inv.middleCols(c0, w) = X;
+    }
+    std::vector<float> out(size_t(nc) * nc);
+    for (int r = 0; r < nc; ++r)
+      for (int c = 0; c < nc; ++c) out[size_t(r) * nc + c] = float(0.5 * (inv(r, c) + inv(c, r)));
+    return out;
+  }
+
+  // Multilevel preconditioner. Level 1: aggregates = fine nodes with equal (coord >> shift), P
+  // piecewise constant, Ac = P^T A P. Two levels (LARAP_CUDA_MG_LEVELS=2, or auto when the 2x2x2
+  // aggregation gives at most LARAP_CUDA_MG_COARSE nodes): the smallest shift >= 1 within that
+  // bound, Ac inverted densely. Three levels (=3, or auto when 2x2x2 gives more): level 1 = 2x2x2
+  // aggregates with Ac1 kept sparse on the device and smoothed by damped Jacobi; level 2 = the
+  // smallest shift >= 2 within the bound, Ac2 = P2^T Ac1 P2 inverted densely.
   template <class SpR>
   void build_two_level(const SpR& A) {
     const int n = n_;
-    std::vector<int> agg(size_t(n), 0);
-    int nc = 0;
-    for (int shift = 1; shift < 31; ++shift) {
-      std::unordered_map<int64_t, int> ids;
-      ids.reserve(size_t(n) / 4 + 16);
-      for (int i = 0; i < n; ++i) {
-        const Eigen::Vector3i& c = lat_.node_coords[size_t(i)];
-        const int64_t key = (int64_t(c.x() >> shift) << 42) | (int64_t(c.y() >> shift) << 21) | int64_t(c.z() >> shift);
-        auto it = ids.emplace(key, int(ids.size())).first;
-        agg[size_t(i)] = it->second;
-      }
-      nc = int(ids.size());
-      if (nc <= mg_coarse_max_) {
+    std::vector<int> agg;
+    int nc = aggregate(1, agg);
+    mg_shift_ = 1;
+    const bool three = mg_levels_env_ == 3 || (mg_levels_env_ != 2 && nc > mg_coarse_max_);
+    if (!three) {
+      for (int shift = 2; nc > mg_coarse_max_ && shift < 31; ++shift) {
+        nc = aggregate(shift, agg);
         mg_shift_ = shift;
-        break;
       }
     }
-    // Default inner iterations: with 2x2x2 aggregates one two-level PCG step per flip-flop reaches
-    // quality sooner than two (more flip-flops, each cheaper); coarser levels need two.
-    if (!inner_env_ && mg_shift_ == 1 && inner_ != 1) {
+    // Default inner iterations: with 2x2x2 aggregates and a dense inverse of them (two levels)
+    // one PCG step per flip-flop reaches quality sooner than two (more flip-flops, each cheaper);
+    // coarser two-level and three-level: two (one needs 2-3x the flip-flops; docs/results-gpu.md).
+    if (!inner_env_ && !three && mg_shift_ == 1 && inner_ != 1) {
       inner_ = 1;
       sys_.inner = 1;
       graph_.reset();
     }
-    Eigen::MatrixXd Ac = Eigen::MatrixXd::Zero(nc, nc);
-    for (int i = 0; i < n; ++i)
-      for (typename SpR::InnerIterator it(A, i); it; ++it) Ac(agg[size_t(i)], agg[size_t(it.col())]) += it.value();
-    Eigen::LLT<Eigen::MatrixXd> llt(Ac);
-    if (llt.info() != Eigen::Success) throw DeviceError("the coarse lattice system is not positive definite");
-    const Eigen::MatrixXd inv = llt.solve(Eigen::MatrixXd::Identity(nc, nc));
-    std::vector<float> ainv(size_t(nc) * nc);
-    for (int r = 0; r < nc; ++r)
-      for (int c = 0; c < nc; ++c) ainv[size_t(r) * nc + c] = float(0.5 * (inv(r, c) + inv(c, r)));
+    // Ac = P^T A P (sparse, double)
+    using SpC = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+    SpC Ac(nc, nc);
+    {
+      std::vector<Eigen::Triplet<double>> tr;
+      tr.reserve(size_t(A.nonZeros()));
+      for (int i = 0; i < n; ++i)
+        for (typename SpR::InnerIterator it(A, i); it; ++it)
+          tr.emplace_back(agg[size_t(i)], agg[size_t(it.col())], it.value());
+      Ac.setFromTriplets(tr.begin(), tr.end());
+      Ac.makeCompressed();
+    }
     sys_.nc = nc;
     sys_.agg = agg_.upload(agg.data(), agg.size(), stream_);
-    sys_.ainv = ainv_.upload(ainv.data(), ainv.size(), stream_);
     sys_.rc = rc_.reserve(size_t(inner_) * nc);
     sys_.zc = zc_.reserve(size_t(nc));
     sys_.z = sys_.x_tmp;
@@ -490,6 +533,60 @@ class CudaBackend final : public Backend {
     sys_.pb[0] = sys_.s[0];
     sys_.pb[1] = sys_.s[1];
     sys_.omega = float(4.0 / (3.0 * lam_max_));
+    sys_.nc2 = 0;
+    mg_nc2_ = 0;
+    if (!three) {
+      const std::vector<float> ainv = dense_inverse(Eigen::MatrixXd(Ac));
+      sys_.ainv = ainv_.upload(ainv.data(), ainv.size(), stream_);
+      return;
+    }
+    // Level 2: coarse nodes of level 1 grouped by fine coord >> shift2 (nested in level 1).
+    std::vector<int> aggf2;
+    int nc2 = 0;
+    for (int shift = 2; shift < 31; ++shift) {
+      nc2 = aggregate(shift, aggf2);
+      if (nc2 <= mg_coarse_max_) break;
+    }
+    std::vector<int> agg2(size_t(nc), 0);
+    for (int i = 0; i < n; ++i) agg2[size_t(agg[size_t(i)])] = aggf2[size_t(i)];
+    Eigen::MatrixXd Ac2 = Eigen::MatrixXd::Zero(nc2, nc2);
+    std::vector<float> cval(size_t(Ac.nonZeros())), cminv(size_t(nc), 1.f);
+    Eigen::VectorXd cd = Eigen::VectorXd::Ones(nc);
+    for (int c = 0; c < nc; ++c)
+      for (int q = Ac.outerIndexPtr()[c]; q < Ac.outerIndexPtr()[c + 1]; ++q) {
+        const int j = Ac.innerIndexPtr()[q];
+        const double v = Ac.valuePtr()[q];
+        cval[size_t(q)] = float(v);
+        if (j == c) cd[c] = v;
+        Ac2(agg2[size_t(c)], agg2[size_t(j)]) += v;
+      }
+    for (int c = 0; c < nc; ++c) {
+      if (!(cd[c] > 0.0)) throw DeviceError("the coarse lattice system is not positive definite");
+      cminv[size_t(c)] = float(1.0 / cd[c]);
+    }
+    double lam = 2.0;  // lambda_max of Dc^-1 Ac1 (power iteration)
+    {
+      Eigen::VectorXd v = Eigen::VectorXd::Random(nc).cwiseAbs() + Eigen::VectorXd::Constant(nc, 0.1);
+      for (int it = 0; it < 40; ++it) {
+        Eigen::VectorXd w = (Ac * v).cwiseQuotient(cd);
+        lam = w.norm() / std::max(v.norm(), 1e-300);
+        v = w / std::max(w.norm(), 1e-300);
+      }
+    }
+    const std::vector<float> ainv = dense_inverse(Ac2);
+    sys_.ainv = ainv_.upload(ainv.data(), ainv.size(), stream_);
+    sys_.nc2 = nc2;
+    mg_nc2_ = nc2;
+    sys_.agg2 = agg2_.upload(agg2.data(), agg2.size(), stream_);
+    sys_.c_off = c_off_.upload(Ac.outerIndexPtr(), size_t(nc) + 1, stream_);
+    sys_.c_col = c_col_.upload(Ac.innerIndexPtr(), size_t(Ac.nonZeros()), stream_);
+    sys_.c_val = c_val_.upload(cval.data(), cval.size(), stream_);
+    sys_.c_minv = c_minv_.upload(cminv.data(), cminv.size(), stream_);
+    sys_.omega1 = float(4.0 / (3.0 * 1.05 * lam));
+    sys_.rc2 = rc2_.reserve(size_t(inner_) * nc2);
+    sys_.zc2 = zc2_.reserve(size_t(nc2));
+    // the upload above reads host vectors: wait before they go out of scope
+    LARAP_CK(cudaStreamSynchronize(stream_));
   }
 
   void set_pose(const RowMatrixX3d& nodes) override {
@@ -905,6 +1002,8 @@ class CudaBackend final : public Backend {
   std::string profile_path_;
   int mg_coarse_max_ = 1536;
   int mg_shift_ = 0;
+  int mg_levels_env_ = 0;  // LARAP_CUDA_MG_LEVELS: 0 = automatic
+  int mg_nc2_ = 0;
   double cheb_ratio_ = 50.0, lam_min_ = 0.0, lam_max_ = 2.0;
   bool ready_ = false;
   HandleSystem hs_;
@@ -916,7 +1015,9 @@ class CudaBackend final : public Backend {
   DevBuf<int> agg_, nbr_, rem_off_, rem_col_;
   DevBuf<float> a_diag_, a_nb_, rem_val_;
   DevBuf<float> ainv_;
-  DevBuf<float4> rc_, zc_;
+  DevBuf<float4> rc_, zc_, rc2_, zc2_;
+  DevBuf<int> agg2_, c_off_, c_col_;
+  DevBuf<float> c_val_, c_minv_;
   DevBuf<int> adj_off_, adj_, a_off_, a_col_, bt_off_, bt_h_, b_ids_, iter_;
   DevBuf<float> a_val_, minv_, bt_w_, b_w_, rot_, coef_;
   DevBuf<uint8_t> anch_;

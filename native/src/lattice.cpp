@@ -320,12 +320,18 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     }
   }
 
+  return from_marks(grid.origin, grid.h, grid.dims, grid.marks);
+}
+
+Lattice Lattice::from_marks(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                            const std::vector<uint8_t>& marks) {
   Lattice lat;
-  lat.origin = grid.origin;
-  lat.h = grid.h;
-  lat.dims = grid.dims;
-  const Eigen::Vector3i& d = grid.dims;
-  lat.cell_grid_.assign(static_cast<size_t>(grid.size()), -1);
+  lat.origin = origin;
+  lat.h = h;
+  lat.dims = dims;
+  const Eigen::Vector3i& d = dims;
+  auto cell_index = [&](int x, int y, int z) { return x + int64_t(d.x()) * (y + int64_t(d.y()) * z); };
+  lat.cell_grid_.assign(marks.size(), -1);
   const int64_t nnode_grid = int64_t(d.x() + 1) * (d.y() + 1) * (d.z() + 1);
   lat.node_grid_.assign(static_cast<size_t>(nnode_grid), -1);
   auto node_index = [&](int x, int y, int z) {
@@ -336,9 +342,9 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   for (int z = 0; z < d.z(); ++z)
     for (int y = 0; y < d.y(); ++y)
       for (int x = 0; x < d.x(); ++x) {
-        const uint8_t m = grid.marks[grid.index(x, y, z)];
+        const uint8_t m = marks[cell_index(x, y, z)];
         if (!(m & kKept)) continue;
-        lat.cell_grid_[grid.index(x, y, z)] = int32_t(lat.cell_coords.size());
+        lat.cell_grid_[cell_index(x, y, z)] = int32_t(lat.cell_coords.size());
         lat.cell_coords.emplace_back(x, y, z);
         lat.cell_kind.push_back(m & kKept);
         for (int c = 0; c < 8; ++c)
@@ -416,6 +422,17 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     lat.component[i] = label[r];
   }
   return lat;
+}
+
+Lattice Lattice::coarsened() const {
+  // Each kept cell marks its parent (x>>1, y>>1, z>>1); the parent keeps the union of the kinds.
+  const Eigen::Vector3i cd = (dims + Eigen::Vector3i::Ones()) / 2;
+  std::vector<uint8_t> marks(size_t(int64_t(cd.x()) * cd.y() * cd.z()), 0);
+  for (size_t k = 0; k < cell_coords.size(); ++k) {
+    const Eigen::Vector3i c = cell_coords[k] / 2;  // coordinates are non-negative
+    marks[c.x() + int64_t(cd.x()) * (c.y() + int64_t(cd.y()) * c.z())] |= cell_kind[k];
+  }
+  return from_marks(origin, 2.0 * h, cd, marks);
 }
 
 }  // namespace larap

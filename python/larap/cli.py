@@ -34,13 +34,15 @@ def _add_solver_args(p):
     p.add_argument("--gamma", type=float, default=0.1, help="rigidity, scale-free (default 0.1)")
     p.add_argument("--iterations", type=int, default=30, help="flip-flop iterations (default 30)")
     p.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto")
+    p.add_argument("--levels", type=int, default=1,
+                   help="lattice levels solved coarse to fine (default 1: the fine lattice alone)")
 
 
 def _deform(V, F, groups, args, out_path, template=None):
     idx, targets = flatten(groups)
     t0 = time.perf_counter()
     d = Deformer(V, F, cells=args.cells, cell_size=args.cell_size, weights=args.weights,
-                 gamma=args.gamma, device=args.device)
+                 gamma=args.gamma, device=args.device, levels=args.levels)
     d.set_handles(idx)
     X = d.solve(targets, iterations=args.iterations)
     wall = (time.perf_counter() - t0) * 1e3

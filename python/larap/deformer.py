@@ -80,10 +80,13 @@ class Deformer:
     gamma: rigidity, scale-free: the same value behaves the same at any model size, lattice
         resolution and handle count (docs/method.md). Larger is stiffer; handles are soft.
     device: "cpu", "cuda" or "auto" (CUDA when a usable GPU exists, else the CPU; see .device).
+    levels: lattice levels solved coarse to fine, each joining 2x2x2 cells of the one below (the
+        paper's hierarchy; coarser levels run on the CPU). 1 = the fine lattice alone. More levels
+        carry large moves across big lattices in fewer iterations.
     """
 
     def __init__(self, vertices, faces=None, *, cells=None, cell_size=None, weights="trilinear",
-                 gamma=0.1, device="cpu", max_bytes=None):
+                 gamma=0.1, device="cpu", max_bytes=None, levels=1):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
@@ -101,8 +104,11 @@ class Deformer:
         if device not in DEVICES:
             raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
         limit = 0 if max_bytes is None else _positive_int("max_bytes", max_bytes)
+        levels = _positive_int("levels", levels)
+        if levels > 8:
+            raise ValueError(f"levels must be between 1 and 8, got {levels}")
         self._n = V.shape[0]
-        self._core = _core.Deformer(V, offsets, indices, n_cells, size, weights, gamma, device, limit)
+        self._core = _core.Deformer(V, offsets, indices, n_cells, size, weights, gamma, device, limit, levels)
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()
@@ -191,6 +197,7 @@ class Deformer:
     device = property(lambda self: self._core.device, doc='"cpu" or "cuda": the backend that runs')
     handles = property(lambda self: self._core.handles, doc="handle vertex ids (1-D int64)")
     diagonal = property(lambda self: self._core.diagonal, doc="bounding-box diagonal of the mesh")
+    levels = property(lambda self: self._core.levels, doc="lattice levels built (coarse to fine)")
 
     @property
     def stats(self) -> dict:

@@ -33,7 +33,7 @@ py::array_t<double> to_numpy(const RowMatrixX3d& M) {
 
 std::unique_ptr<larap::Deformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
                                       double cell_size, const std::string& weights, double gamma,
-                                      const std::string& device, int64_t max_bytes) {
+                                      const std::string& device, int64_t max_bytes, int levels) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -48,6 +48,7 @@ std::unique_ptr<larap::Deformer> make(F64 vertices, I64 offsets, I64 indices, in
   opt.weights = larap::parse_weight_kind(weights);
   opt.gamma = gamma;
   opt.device = device;
+  opt.levels = levels;
   py::gil_scoped_release release;
   return std::make_unique<larap::Deformer>(std::move(mesh), opt);
 }
@@ -125,6 +126,7 @@ py::dict stats(const larap::Deformer& d) {
   r["ms_total"] = s.ms_total;
   r["ms_energy"] = s.ms_energy;
   r["ms_start"] = s.ms_start;
+  r["ms_coarse"] = s.ms_coarse;
   r["ms_factorize"] = s.ms_factorize;
   r["ms_lattice"] = s.ms_lattice;
   r["ms_binding"] = s.ms_binding;
@@ -137,7 +139,8 @@ void bind_deformer(py::module_& m) {
   py::class_<larap::Deformer>(m, "Deformer")
       .def(py::init(&make), py::arg("vertices"), py::arg("face_offsets"), py::arg("face_indices"),
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
-           py::arg("gamma") = 0.1, py::arg("device") = "cpu", py::arg("max_bytes") = 0)
+           py::arg("gamma") = 0.1, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
+           py::arg("levels") = 1)
       .def("set_handles",
            [](larap::Deformer& d, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
@@ -173,6 +176,7 @@ void bind_deformer(py::module_& m) {
       .def_property_readonly("num_components", [](const larap::Deformer& d) { return d.lattice().num_components; })
       .def_property_readonly("cell_size", [](const larap::Deformer& d) { return d.lattice().h; })
       .def_property_readonly("diagonal", &larap::Deformer::diagonal)
+      .def_property_readonly("levels", &larap::Deformer::levels)
       .def_property_readonly("device", &larap::Deformer::device)
       .def_property_readonly("fallback_reason", &larap::Deformer::fallback_reason)
       .def_property_readonly("handles", [](const larap::Deformer& d) {

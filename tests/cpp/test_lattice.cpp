@@ -99,3 +99,29 @@ TEST_P(BindingAffine, ReproducesAffineMaps) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Weights, BindingAffine, ::testing::Values(WeightKind::Trilinear, WeightKind::BSpline));
+
+TEST(Lattice, CoarsenedLevelCoversEveryCell) {
+  const PolygonMesh m = gen::sphere({0, 0, 0}, 1.0, 12, 24);
+  LatticeOptions opt;
+  opt.cell_size = 0.1;
+  const Lattice fine = Lattice::build(m, opt);
+  const Lattice coarse = fine.coarsened();
+  EXPECT_DOUBLE_EQ(coarse.h, 2 * fine.h);
+  EXPECT_EQ(coarse.origin, fine.origin);
+  EXPECT_LT(coarse.num_cells(), fine.num_cells());
+  EXPECT_GE(coarse.num_cells() * 8, fine.num_cells());
+  for (const auto& c : fine.cell_coords) EXPECT_GE(coarse.cell_at(c.x() / 2, c.y() / 2, c.z() / 2), 0);
+  // Every coarse cell has a kept child, and coarse nodes sit at even fine coordinates.
+  for (const auto& c : coarse.cell_coords) {
+    bool child = false;
+    for (int k = 0; k < 8 && !child; ++k)
+      child = fine.cell_at(2 * c.x() + (k & 1), 2 * c.y() + ((k >> 1) & 1), 2 * c.z() + (k >> 2)) >= 0;
+    EXPECT_TRUE(child);
+  }
+  // A coarse node at a corner of the fine grid sits exactly on that fine node.
+  for (int64_t i = 0; i < coarse.num_nodes(); ++i) {
+    const Eigen::Vector3i q = 2 * coarse.node_coords[i];
+    const int32_t j = fine.node_at(q.x(), q.y(), q.z());
+    if (j >= 0) EXPECT_NEAR((coarse.rest.row(i) - fine.rest.row(j)).norm(), 0.0, 1e-12);
+  }
+}

@@ -112,3 +112,12 @@ def test_bad_files_exit_2(tmp_path, mesh_file, capsys):
     assert main(["deform", str(trunc), "--handles", str(h), "--out", "x.obj"]) == 2
     assert main(["deform", str(path), "--handles", str(h), "--out", str(tmp_path / "o.obj"), "--cells", "-3"]) == 2
     assert "cells" in capsys.readouterr().err
+
+
+def test_demo_with_a_hierarchy(tmp_path):
+    out = tmp_path / "demo3.obj"
+    assert main(["demo", "--out", str(out), "--device", "cpu", "--levels", "3", "--iterations", "10"]) == 0
+    V, _ = larap.load_mesh(out)
+    V0, _ = shapes.tube(length=4.0, radius=0.5, segments=48, rings=96)
+    assert V[V0[:, 0] > 3.9].mean(0)[1] > 1.5
+    assert main(["demo", "--out", str(out), "--levels", "0"]) == 2

@@ -15,6 +15,7 @@
 #include <larap/lattice.h>
 #include <larap/mesh.h>
 
+#include <array>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -27,6 +28,8 @@ struct DeformerOptions {
   WeightKind weights = WeightKind::Trilinear;
   double gamma = 0.1;
   std::string device = "cpu";  // "cpu" | "cuda" | "auto"
+  // Lattice levels solved coarse to fine (the paper's hierarchy); 1 = the fine lattice alone.
+  int levels = 1;
 };
 
 struct SolveStats {
@@ -36,17 +39,19 @@ struct SolveStats {
   double ms_rotations = 0, ms_rhs = 0, ms_solve = 0, ms_transfer = 0, ms_total = 0;
   double ms_energy = 0;        // evaluating the energy after each iteration
   double ms_start = 0;         // choosing the start (rigid carry, rest candidate)
+  double ms_coarse = 0;        // the coarser levels of a hierarchy
   double ms_factorize = 0;     // last set_handles
   double ms_lattice = 0, ms_binding = 0;  // construction
   void clear_solve() {
     energy.clear();
     iterations = 0;
     rigid_carry = false;
-    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = ms_energy = ms_start = 0;
+    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = ms_energy = ms_start = ms_coarse = 0;
   }
 };
 
 class Backend;
+struct HandleSystem;
 
 class Deformer {
  public:
@@ -83,6 +88,19 @@ class Deformer {
   std::string device() const;
   const SolveStats& stats() const { return stats_; }
   const Binding& binding() const;
+  // Number of lattice levels actually built (coarsening stops at a single cell).
+  int levels() const { return 1 + static_cast<int>(levels_.size()); }
+
+  struct Level {  // a coarser lattice of the hierarchy (internal)
+    Lattice lattice;
+    std::unique_ptr<Backend> backend;
+    std::vector<std::array<int32_t, 8>> prolong_ids;  // per node of the next finer level
+    std::vector<std::array<double, 8>> prolong_w;
+    std::vector<uint8_t> anchored;
+    Level();
+    Level(Level&&) noexcept;
+    ~Level();
+  };
   // Callers that use one Deformer from several threads lock this around each call (the Python
   // module does); the class itself is not thread-safe.
   std::mutex& mutex() const { return mutex_; }
@@ -95,6 +113,9 @@ class Deformer {
   // Validation, warm start and iterations of a solve; false when there are no handles.
   bool pose_lattice(const double* targets, int iterations, double tolerance);
   void prepare_handles();
+  void build_levels(int levels);
+  HandleSystem handle_system(const Lattice& lat, int stencil, std::vector<int32_t> ids,
+                             std::vector<double> weights) const;
 
   PolygonMesh mesh_;
   Lattice lattice_;
@@ -109,6 +130,8 @@ class Deformer {
   bool handles_set_ = false;
   bool auto_device_ = false;
   std::string fallback_;
+  std::vector<Level> levels_;          // levels_[k] is level k+1 (cells 2^(k+1) times larger)
+  std::vector<uint8_t> fine_anchored_;
   mutable std::mutex mutex_;
   SolveStats stats_;
 };

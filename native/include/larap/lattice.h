@@ -72,10 +72,16 @@ class Lattice {
   // Kept cell id at integer grid coordinates, or -1.
   int32_t cell_at(int x, int y, int z) const;
 
+  // The next coarser level: cells are 2x2x2 blocks of this lattice's cells (same origin, twice
+  // the cell size); a block is kept when any of its cells is.
+  Lattice coarsened() const;
+
   // Bytes a grid of these dimensions needs while building (dense index grids + marks).
   static int64_t estimate_bytes(const Eigen::Vector3i& dims);
 
  private:
+  static Lattice from_marks(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                            const std::vector<uint8_t>& marks);
   std::vector<int32_t> node_grid_;  // (dims+1)^3 dense map to node ids
   std::vector<int32_t> cell_grid_;  // dims^3 dense map to cell ids
 };

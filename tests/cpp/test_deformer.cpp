@@ -138,3 +138,25 @@ TEST(Deformer, NoHandlesGiveRest) {
   d.solve(nullptr, 5, X.data());
   EXPECT_EQ((X - m.vertices).cwiseAbs().maxCoeff(), 0.0);
 }
+
+TEST(Deformer, HierarchyRestAndRigid) {
+  const PolygonMesh m = ball();
+  DeformerOptions opt;
+  opt.lattice.cells = 1500;
+  opt.levels = 3;
+  Deformer d(m, opt);
+  EXPECT_EQ(d.levels(), 3);
+  const auto idx = spread(m.num_vertices(), 30);
+  d.set_handles(idx);
+  RowMatrixX3d X(m.num_vertices(), 3);
+  RowMatrixX3d T = gather(m.vertices, idx);
+  d.solve(T.data(), 5, X.data());
+  EXPECT_LE((X - m.vertices).cwiseAbs().maxCoeff(), 1e-6 * diag(m.vertices));
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  const RowMatrixX3d moved = (m.vertices * R.transpose()).rowwise() + Eigen::RowVector3d(1.0, -2.0, 0.5);
+  T = gather(moved, idx);
+  d.solve(T.data(), 30, X.data());
+  EXPECT_LE((X - moved).cwiseAbs().maxCoeff(), 1e-3 * diag(m.vertices));
+  opt.levels = 0;
+  EXPECT_THROW(Deformer(m, opt), InvalidInput);
+}

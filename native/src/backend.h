@@ -12,52 +12,15 @@
 // that hold no handle: they stay at rest.
 #pragma once
 #include <larap/binding.h>
-#include <larap/deformer.h>
+#include <larap/solve_stats.h>
 
 #include <Eigen/Core>
-#include <Eigen/SparseCore>
 #include <memory>
 #include <string>
 
+#include "handle_system.h"
+
 namespace larap {
-
-struct HandleSystem {
-  int64_t m = 0;                 // number of handles
-  int stencil = 8;               // entries per row of B
-  std::vector<int32_t> ids;      // m * stencil node ids
-  std::vector<double> weights;   // m * stencil weights
-  double gamma_eff = 0.0;        // ARAP weight in the form above
-  std::vector<uint8_t> anchored; // #N, 1 = held at rest
-  double anchor_weight = 0.0;    // a
-  double energy_scale = 1.0;     // reported energy = E * energy_scale (= 1 / (m D^2))
-};
-
-// Triplets of 2 gamma_eff L + a I_anchored (the ARAP part of the system matrix), shared by the
-// backends so that both assemble exactly the same system.
-inline std::vector<Eigen::Triplet<double>> arap_triplets(const Lattice& lat, const HandleSystem& hs) {
-  std::vector<Eigen::Triplet<double>> trip;
-  trip.reserve(lat.edges.size() * 4 + size_t(lat.num_nodes()));
-  const double g2 = 2.0 * hs.gamma_eff;
-  for (const auto& e : lat.edges) {
-    trip.emplace_back(e[0], e[0], g2);
-    trip.emplace_back(e[1], e[1], g2);
-    trip.emplace_back(e[0], e[1], -g2);
-    trip.emplace_back(e[1], e[0], -g2);
-  }
-  for (int64_t i = 0; i < lat.num_nodes(); ++i)
-    if (hs.anchored[i]) trip.emplace_back(int(i), int(i), hs.anchor_weight);
-  return trip;
-}
-
-// Triplets of B (m by #N): handle j's stencil weights.
-inline std::vector<Eigen::Triplet<double>> handle_triplets(const HandleSystem& hs) {
-  std::vector<Eigen::Triplet<double>> bt;
-  bt.reserve(size_t(hs.m) * hs.stencil);
-  for (int64_t j = 0; j < hs.m; ++j)
-    for (int k = 0; k < hs.stencil; ++k)
-      bt.emplace_back(int(j), hs.ids[j * hs.stencil + k], hs.weights[j * hs.stencil + k]);
-  return bt;
-}
 
 class Backend {
  public:

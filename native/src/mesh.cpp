@@ -12,7 +12,7 @@ void validate_mesh(const PolygonMesh& mesh) {
   for (int64_t i = 0; i < n; ++i)
     for (int c = 0; c < 3; ++c)
       if (!std::isfinite(mesh.vertices(i, c)))
-        throw InvalidInput("vertex " + std::to_string(i) + " has a non-finite coordinate (" +
+        throw InvalidInput("vertices[" + std::to_string(i) + "] has a non-finite coordinate (" +
                            std::to_string(mesh.vertices(i, c)) + ")");
   if (mesh.face_offsets.empty() || mesh.face_offsets.front() != 0)
     throw InvalidInput("face offsets must start at 0");

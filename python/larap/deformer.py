@@ -1,4 +1,6 @@
-"""The numpy-facing Deformer: validates every input, then hands it to the native engine."""
+"""The numpy-facing Deformer: converts every input to the engine's types and shapes (with errors
+that name the argument), then hands it to the native engine, which checks the values (ranges,
+finiteness, limits) once, for C++ and Python callers alike."""
 from __future__ import annotations
 
 import numbers
@@ -9,8 +11,6 @@ import numpy as np
 from ._native import _core
 from .io import faces_to_csr
 
-WEIGHTS = ("trilinear", "bspline")
-DEVICES = ("cpu", "cuda", "auto")
 
 
 def available_devices() -> list[str]:
@@ -31,7 +31,8 @@ def num_threads() -> int:
 
 
 def _points(name: str, array, rows: int | None = None) -> np.ndarray:
-    """(rows, 3) float64 C-contiguous copy-or-view of `array`, finite, with clear errors."""
+    """(rows, 3) float64 C-contiguous copy-or-view of `array`, with clear errors (the engine
+    rejects non-finite values)."""
     try:
         a = np.asarray(array)
     except Exception as exc:  # ragged lists and the like
@@ -44,12 +45,7 @@ def _points(name: str, array, rows: int | None = None) -> np.ndarray:
         raise ValueError(f"{name} should have shape ({'n' if rows is None else rows}, 3), shape is {a.shape}")
     if rows is not None and a.shape[0] != rows:
         raise ValueError(f"{name} should have shape ({rows}, 3), shape is {a.shape}")
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    bad = ~np.isfinite(a)
-    if bad.any():
-        row = int(np.argwhere(bad)[0][0])
-        raise ValueError(f"{name}[{row}] is not finite: {a[row].tolist()}")
-    return a
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _positive_int(name: str, value) -> int:
@@ -60,13 +56,46 @@ def _positive_int(name: str, value) -> int:
     return int(value)
 
 
-def _positive_float(name: str, value) -> float:
+def _real(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be a number, got {value!r}")
-    value = float(value)
+    return float(value)
+
+
+def _positive_float(name: str, value) -> float:
+    """For cells and cell_size, where the engine reads 0 as "choose for me"."""
+    value = _real(name, value)
     if not np.isfinite(value) or value <= 0.0:
         raise ValueError(f"{name} must be a positive finite number, got {value}")
     return value
+
+
+def _integer(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    return int(value)
+
+
+def _polygons(faces, face_offsets, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets, indices) of the faces: from `faces` as given, or, with `face_offsets`, `faces`
+    is already the flat index array (the engine checks the ranges)."""
+    if face_offsets is None:
+        if faces is None:
+            return np.zeros(1, np.int64), np.zeros(0, np.int64)
+        return faces_to_csr(faces, n)
+    offsets = np.asarray(face_offsets)
+    indices = np.asarray(faces) if faces is not None else np.zeros(0, np.int64)
+    for name, a in (("face_offsets", offsets), ("faces", indices)):
+        if a.ndim != 1:
+            raise ValueError(f"with face_offsets, {name} must be a 1-D integer array, shape is {a.shape}")
+        if a.size and (a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer)):
+            raise TypeError(f"{name} must hold integers, got dtype {a.dtype}")
+    offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+    indices = np.ascontiguousarray(indices, dtype=np.int64)
+    if offsets.size == 0 or offsets[-1] != indices.size:
+        raise ValueError(f"face_offsets must end at len(faces) = {indices.size} "
+                         f"(one entry more than the number of faces)")
+    return offsets, indices
 
 
 class Deformer:
@@ -74,6 +103,9 @@ class Deformer:
 
     vertices: (n, 3) rest positions (any real dtype; copied to float64).
     faces: (m, k) integer array, a list of polygons of any sizes, or None for a point cloud.
+    face_offsets: optional (m + 1,) integer array: then `faces` is the flat 1-D array of the
+        polygons' vertex ids and face f is faces[face_offsets[f]:face_offsets[f + 1]] (Blender's
+        loops.vertex_index with polygons.loop_start plus the loop count), passed on as it is.
     cells: approximate number of lattice cells (default about 6000), or
     cell_size: the lattice cell edge length (give one of the two).
     weights: "trilinear" (8 nodes, fast, for dragging) or "bspline" (27 nodes, C1, final quality).
@@ -85,30 +117,20 @@ class Deformer:
         carry large moves across big lattices in fewer iterations.
     """
 
-    def __init__(self, vertices, faces=None, *, cells=None, cell_size=None, weights="trilinear",
-                 gamma=0.1, device="cpu", max_bytes=None, levels=1):
+    def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
+                 weights="trilinear", gamma=0.1, device="cpu", max_bytes=None, levels=1):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
-        if faces is None:
-            offsets, indices = np.zeros(1, np.int64), np.zeros(0, np.int64)
-        else:
-            offsets, indices = faces_to_csr(faces, V.shape[0])
+        offsets, indices = _polygons(faces, face_offsets, V.shape[0])
         if cells is not None and cell_size is not None:
             raise ValueError("give cells or cell_size, not both")
         n_cells = _positive_int("cells", cells) if cells is not None else 0
         size = _positive_float("cell_size", cell_size) if cell_size is not None else 0.0
-        if weights not in WEIGHTS:
-            raise ValueError(f"weights must be one of {WEIGHTS}, got {weights!r}")
-        gamma = _positive_float("gamma", gamma)
-        if device not in DEVICES:
-            raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
         limit = 0 if max_bytes is None else _positive_int("max_bytes", max_bytes)
-        levels = _positive_int("levels", levels)
-        if levels > 8:
-            raise ValueError(f"levels must be between 1 and 8, got {levels}")
         self._n = V.shape[0]
-        self._core = _core.Deformer(V, offsets, indices, n_cells, size, weights, gamma, device, limit, levels)
+        self._core = _core.Deformer(V, offsets, indices, n_cells, size, str(weights), _real("gamma", gamma),
+                                    str(device), limit, _integer("levels", levels))
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()
@@ -161,10 +183,9 @@ class Deformer:
         """Checked (targets (m, 3) float64, iterations, tolerance) of a solve call."""
         if not self._handles_set:
             raise RuntimeError(f"{what}() needs set_handles() first")
-        if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) or iterations < 0:
-            raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
-        tol = 0.0 if tol is None else _positive_float("tol", tol)
-        return _points("targets", targets, rows=len(self._core.handles)), int(iterations), tol
+        iterations = _integer("iterations", iterations)
+        tol = 0.0 if tol is None else _real("tol", tol)
+        return _points("targets", targets, rows=len(self._core.handles)), iterations, tol
 
     def reset(self) -> None:
         """Forget the pose: the next solve starts from the rest lattice."""
@@ -176,9 +197,7 @@ class Deformer:
 
     @weights.setter
     def weights(self, value: str) -> None:
-        if value not in WEIGHTS:
-            raise ValueError(f"weights must be one of {WEIGHTS}, got {value!r}")
-        self._core.weights = value
+        self._core.weights = str(value)
 
     @property
     def gamma(self) -> float:
@@ -186,7 +205,7 @@ class Deformer:
 
     @gamma.setter
     def gamma(self, value: float) -> None:
-        self._core.gamma = _positive_float("gamma", value)
+        self._core.gamma = _real("gamma", value)
 
     # ------------------------------------------------------------------ inspection
     num_vertices = property(lambda self: self._core.num_vertices, doc="number of mesh vertices")

@@ -1,5 +1,7 @@
-// pybind11 binding of larap::Deformer. Inputs arrive already validated and converted by
-// python/larap/deformer.py; the checks here guard the memory accesses only.
+// pybind11 binding of larap::Deformer. Inputs arrive converted by python/larap/deformer.py
+// (types, shapes) and the engine checks their values; the checks here guard memory accesses only.
+// Python threads may share one Deformer: every call runs with the GIL released under the
+// instance's own lock (PyDeformer::locked), so calls on one instance are serialised.
 #include <larap/deformer.h>
 #include <larap/errors.h>
 #include <pybind11/numpy.h>
@@ -16,6 +18,28 @@ using larap::RowMatrixX3d;
 
 namespace {
 
+// The engine object plus the lock that serialises the calls of Python threads on it.
+struct PyDeformer {
+  larap::Deformer engine;
+  mutable std::mutex mutex;
+  PyDeformer(larap::PolygonMesh mesh, const larap::DeformerOptions& options)
+      : engine(std::move(mesh), options) {}
+
+  // f(engine) with the GIL released and this instance locked.
+  template <typename F>
+  auto locked(F&& f) {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(mutex);
+    return f(engine);
+  }
+  template <typename F>
+  auto locked(F&& f) const {
+    py::gil_scoped_release release;
+    std::lock_guard<std::mutex> lock(mutex);
+    return f(static_cast<const larap::Deformer&>(engine));
+  }
+};
+
 using F64 = py::array_t<double, py::array::c_style | py::array::forcecast>;
 using I64 = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
 
@@ -31,7 +55,7 @@ py::array_t<double> to_numpy(const RowMatrixX3d& M) {
   return a;
 }
 
-std::unique_ptr<larap::Deformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
+std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels) {
   const auto vi = vertices.request();
@@ -50,10 +74,11 @@ std::unique_ptr<larap::Deformer> make(F64 vertices, I64 offsets, I64 indices, in
   opt.device = device;
   opt.levels = levels;
   py::gil_scoped_release release;
-  return std::make_unique<larap::Deformer>(std::move(mesh), opt);
+  return std::make_unique<PyDeformer>(std::move(mesh), opt);
 }
 
-py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out, double tolerance) {
+py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, double tolerance) {
+  const larap::Deformer& d = self.engine;
   const int64_t m = static_cast<int64_t>(d.handles().size());
   const int64_t n = d.mesh().num_vertices();
   require_rows3(targets.request(), "targets", m);
@@ -71,14 +96,10 @@ py::array solve(larap::Deformer& d, F64 targets, int iterations, py::object out,
   const double* t = targets.data();
   if (py::isinstance<py::array_t<float>>(result) && result.dtype().is(py::dtype::of<float>())) {
     float* o = static_cast<float*>(result.mutable_data());
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> lock(d.mutex());
-    d.solve(t, iterations, o, tolerance);
+    self.locked([&](larap::Deformer& e) { e.solve(t, iterations, o, tolerance); });
   } else if (result.dtype().is(py::dtype::of<double>())) {
     double* o = static_cast<double*>(result.mutable_data());
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> lock(d.mutex());
-    d.solve(t, iterations, o, tolerance);
+    self.locked([&](larap::Deformer& e) { e.solve(t, iterations, o, tolerance); });
   } else {
     throw larap::InvalidInput("out must be a float32 or float64 array");
   }
@@ -94,27 +115,17 @@ struct DeviceArray {
   py::object owner;  // keeps the Deformer alive
 };
 
-DeviceArray solve_on_device(py::object self, F64 targets, int iterations, double tolerance) {
-  auto& d = self.cast<larap::Deformer&>();
-  const int64_t m = static_cast<int64_t>(d.handles().size());
+DeviceArray solve_on_device(py::object owner, F64 targets, int iterations, double tolerance) {
+  auto& self = owner.cast<PyDeformer&>();
+  const int64_t m = static_cast<int64_t>(self.engine.handles().size());
   require_rows3(targets.request(), "targets", m);
   const double* t = targets.data();
-  const float* p = nullptr;
-  {
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> lock(d.mutex());
-    p = d.solve_on_device(t, iterations, tolerance);
-  }
-  return DeviceArray{reinterpret_cast<uintptr_t>(p), d.mesh().num_vertices(), self};
+  const float* p = self.locked([&](larap::Deformer& e) { return e.solve_on_device(t, iterations, tolerance); });
+  return DeviceArray{reinterpret_cast<uintptr_t>(p), self.engine.mesh().num_vertices(), owner};
 }
 
-py::dict stats(const larap::Deformer& d) {
-  larap::SolveStats s;
-  {
-    py::gil_scoped_release release;
-    std::lock_guard<std::mutex> lock(d.mutex());
-    s = d.stats();
-  }
+py::dict stats(const PyDeformer& self) {
+  const larap::SolveStats s = self.locked([](const larap::Deformer& e) { return e.stats(); });
   py::dict r;
   r["energy"] = s.energy;
   r["iterations"] = s.iterations;
@@ -136,86 +147,74 @@ py::dict stats(const larap::Deformer& d) {
 }  // namespace
 
 void bind_deformer(py::module_& m) {
-  py::class_<larap::Deformer>(m, "Deformer")
+  using D = larap::Deformer;
+  py::class_<PyDeformer>(m, "Deformer")
       .def(py::init(&make), py::arg("vertices"), py::arg("face_offsets"), py::arg("face_indices"),
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
            py::arg("gamma") = 0.1, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
            py::arg("levels") = 1)
       .def("set_handles",
-           [](larap::Deformer& d, I64 idx) {
+           [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
-             py::gil_scoped_release release;
-             std::lock_guard<std::mutex> lock(d.mutex());
-             d.set_handles(v);
+             self.locked([&](D& d) { d.set_handles(v); });
            })
       .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none(),
            py::arg("tolerance") = 0.0)
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0)
-      .def("reset", [](larap::Deformer& d) {
-        py::gil_scoped_release release;
-        std::lock_guard<std::mutex> lock(d.mutex());
-        d.reset();
-      })
+      .def("reset", [](PyDeformer& self) { self.locked([](D& d) { d.reset(); }); })
       .def_property(
-          "weights", [](const larap::Deformer& d) { return std::string(larap::weight_kind_name(d.weights())); },
-          [](larap::Deformer& d, const std::string& w) {
+          "weights", [](const PyDeformer& self) { return std::string(larap::weight_kind_name(self.engine.weights())); },
+          [](PyDeformer& self, const std::string& w) {
             const auto k = larap::parse_weight_kind(w);
-            py::gil_scoped_release release;
-            std::lock_guard<std::mutex> lock(d.mutex());
-            d.set_weights(k);
+            self.locked([&](D& d) { d.set_weights(k); });
           })
-      .def_property("gamma", &larap::Deformer::gamma, [](larap::Deformer& d, double g) {
-        py::gil_scoped_release release;
-        std::lock_guard<std::mutex> lock(d.mutex());
-        d.set_gamma(g);
-      })
-      .def_property_readonly("num_vertices", [](const larap::Deformer& d) { return d.mesh().num_vertices(); })
-      .def_property_readonly("num_nodes", [](const larap::Deformer& d) { return d.lattice().num_nodes(); })
-      .def_property_readonly("num_cells", [](const larap::Deformer& d) { return d.lattice().num_cells(); })
-      .def_property_readonly("num_components", [](const larap::Deformer& d) { return d.lattice().num_components; })
-      .def_property_readonly("cell_size", [](const larap::Deformer& d) { return d.lattice().h; })
-      .def_property_readonly("diagonal", &larap::Deformer::diagonal)
-      .def_property_readonly("levels", &larap::Deformer::levels)
-      .def_property_readonly("device", &larap::Deformer::device)
-      .def_property_readonly("fallback_reason", &larap::Deformer::fallback_reason)
-      .def_property_readonly("handles", [](const larap::Deformer& d) {
-        return py::array_t<int64_t>(py::ssize_t(d.handles().size()), d.handles().data());
+      .def_property(
+          "gamma", [](const PyDeformer& self) { return self.engine.gamma(); },
+          [](PyDeformer& self, double g) { self.locked([&](D& d) { d.set_gamma(g); }); })
+      .def_property_readonly("num_vertices", [](const PyDeformer& self) { return self.engine.mesh().num_vertices(); })
+      .def_property_readonly("num_nodes", [](const PyDeformer& self) { return self.engine.lattice().num_nodes(); })
+      .def_property_readonly("num_cells", [](const PyDeformer& self) { return self.engine.lattice().num_cells(); })
+      .def_property_readonly("num_components", [](const PyDeformer& self) { return self.engine.lattice().num_components; })
+      .def_property_readonly("cell_size", [](const PyDeformer& self) { return self.engine.lattice().h; })
+      .def_property_readonly("diagonal", [](const PyDeformer& self) { return self.engine.diagonal(); })
+      .def_property_readonly("levels", [](const PyDeformer& self) { return self.engine.levels(); })
+      .def_property_readonly("device", [](const PyDeformer& self) { return self.engine.device(); })
+      .def_property_readonly("fallback_reason", [](const PyDeformer& self) { return self.engine.fallback_reason(); })
+      .def_property_readonly("handles", [](const PyDeformer& self) {
+        const auto& h = self.engine.handles();
+        return py::array_t<int64_t>(py::ssize_t(h.size()), h.data());
       })
       .def_property_readonly("stats", &stats)
-      .def("lattice_rest", [](const larap::Deformer& d) { return to_numpy(d.lattice().rest); })
-      .def("lattice_deformed", [](const larap::Deformer& d) {
-        larap::RowMatrixX3d p;
-        {
-          py::gil_scoped_release release;
-          std::lock_guard<std::mutex> lock(d.mutex());
-          p = d.lattice_deformed();
-        }
-        return to_numpy(p);
+      .def("lattice_rest", [](const PyDeformer& self) { return to_numpy(self.engine.lattice().rest); })
+      .def("lattice_deformed", [](const PyDeformer& self) {
+        return to_numpy(self.locked([](const D& d) { return d.lattice_deformed(); }));
       })
-      .def("lattice_edges", [](const larap::Deformer& d) {
-        const auto& e = d.lattice().edges;
+      .def("lattice_edges", [](const PyDeformer& self) {
+        const auto& e = self.engine.lattice().edges;
         py::array_t<int32_t> a({py::ssize_t(e.size()), py::ssize_t(2)});
         if (!e.empty()) std::memcpy(a.mutable_data(), e.data(), sizeof(int32_t) * 2 * e.size());
         return a;
       })
-      .def("cell_kinds", [](const larap::Deformer& d) {
-        const auto& k = d.lattice().cell_kind;
+      .def("cell_kinds", [](const PyDeformer& self) {
+        const auto& k = self.engine.lattice().cell_kind;
         return py::array_t<uint8_t>(py::ssize_t(k.size()), k.data());
       })
-      .def("cell_coords", [](const larap::Deformer& d) {
-        const auto& c = d.lattice().cell_coords;
+      .def("cell_coords", [](const PyDeformer& self) {
+        const auto& c = self.engine.lattice().cell_coords;
         py::array_t<int32_t> a({py::ssize_t(c.size()), py::ssize_t(3)});
         for (size_t i = 0; i < c.size(); ++i)
           for (int k = 0; k < 3; ++k) a.mutable_at(i, k) = c[i][k];
         return a;
       })
-      .def_property_readonly("origin", [](const larap::Deformer& d) {
-        return py::make_tuple(d.lattice().origin.x(), d.lattice().origin.y(), d.lattice().origin.z());
+      .def_property_readonly("origin", [](const PyDeformer& self) {
+        const auto& o = self.engine.lattice().origin;
+        return py::make_tuple(o.x(), o.y(), o.z());
       })
-      .def("binding_weights", [](const larap::Deformer& d, int64_t v) {
+      .def("binding_weights", [](const PyDeformer& self, int64_t v) {
+        const D& d = self.engine;
         if (v < 0 || v >= d.mesh().num_vertices()) throw larap::InvalidInput("vertex out of range");
-        const auto& b = d.binding();
+        const auto& b = self.locked([](const D& e) -> const larap::Binding& { return e.binding(); });
         std::vector<int32_t> ids(b.stencil_size());
         std::vector<double> w(b.stencil_size());
         b.weights_of(d.lattice(), v, ids.data(), w.data());
@@ -245,4 +244,6 @@ void bind_deformer(py::module_& m) {
     larap::set_num_threads(n);
   }, py::arg("n"));
   m.def("num_threads", &larap::num_threads);
+  m.attr("MAX_LEVELS") = larap::kMaxLevels;
+  m.attr("MAX_ITERATIONS") = larap::kMaxIterations;
 }

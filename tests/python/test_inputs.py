@@ -149,3 +149,44 @@ def test_public_meshes_bind_and_solve(shared_meshes):
         V, F = larap.load_mesh(os.path.join(shared_meshes, name))
         d, X = solve_somehow(V, F, cells=2000)
         assert d.num_nodes > 100, name
+
+
+def test_polygon_csr_gives_the_same_deformer_as_a_polygon_list():
+    """Blender hands its polygons over as CSR (loops.vertex_index, polygons.loop_start): passed
+    on as they are, they give the same lattice and pose as the same polygons given as a list."""
+    V, F = shapes.sphere((0, 0, 0), 1.0, 8, 16)  # quads and triangle fans at the poles
+    offsets = np.concatenate([[0], np.cumsum([len(f) for f in F])])
+    flat = np.concatenate([np.asarray(f) for f in F])
+    a = larap.Deformer(V, F, cells=400)
+    b = larap.Deformer(V, flat.astype(np.int32), face_offsets=offsets.astype(np.int32), cells=400)
+    np.testing.assert_array_equal(a.lattice_rest(), b.lattice_rest())
+    idx = np.arange(6)
+    for d in (a, b):
+        d.set_handles(idx)
+    T = V[idx] + [0.2, 0, 0]
+    np.testing.assert_array_equal(a.solve(T, 5), b.solve(T, 5))
+
+
+@pytest.mark.parametrize("offsets,flat,exc,words", [
+    ([0, 3, 5], [0, 1, 2, 3], ValueError, "end at"),
+    ([[0, 3]], [0, 1, 2], ValueError, "1-D"),
+    ([0, 3], [0.0, 1.0, 2.0], TypeError, "integers"),
+    ([0, 3], [0, 1, 10**6], ValueError, "out of range"),
+    ([0, 3, 2, 3], [0, 1, 2], ValueError, "offsets"),
+])
+def test_polygon_csr_errors(offsets, flat, exc, words):
+    V, _ = shapes.sphere((0, 0, 0), 1.0, 8, 16)
+    with pytest.raises(exc) as info:
+        larap.Deformer(V, np.asarray(flat), face_offsets=np.asarray(offsets), cells=200)
+    assert words in str(info.value), str(info.value)
+
+
+def test_limits_are_the_engines():
+    """One definition of each limit: the engine's, which Python reports as it is."""
+    V, F = shapes.sphere((0, 0, 0), 1.0, 8, 16)
+    with pytest.raises(ValueError, match=f"between 1 and {larap._core.MAX_LEVELS}"):
+        larap.Deformer(V, F, cells=200, levels=larap._core.MAX_LEVELS + 1)
+    d = larap.Deformer(V, F, cells=200)
+    d.set_handles([0])
+    with pytest.raises(ValueError, match=str(larap._core.MAX_ITERATIONS)):
+        d.solve(V[:1], iterations=larap._core.MAX_ITERATIONS + 1)

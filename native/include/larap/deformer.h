@@ -10,57 +10,47 @@
 // of gyration of the rest vertices. The same gamma behaves the same at any model scale, lattice
 // resolution and handle count: a uniform strain eps of the whole lattice costs as much as every
 // handle missing its target by sqrt(gamma) * eps * s.
+//
+// Not thread-safe: a caller that shares one Deformer between threads serialises the calls (the
+// Python module does, per instance).
 #pragma once
 #include <larap/binding.h>
 #include <larap/lattice.h>
 #include <larap/mesh.h>
+#include <larap/solve_stats.h>
 
-#include <array>
 #include <memory>
-#include <mutex>
 #include <string>
 #include <vector>
 
 namespace larap {
 
+// ------------------------------------------------------------------------------------ limits
+constexpr int kMaxLevels = 8;             // DeformerOptions::levels is in [1, kMaxLevels]
+constexpr int kMaxIterations = 100000;    // solve(..., iterations) is in [0, kMaxIterations]
+
+// ------------------------------------------------------------------------------------ options
 struct DeformerOptions {
-  LatticeOptions lattice;
-  WeightKind weights = WeightKind::Trilinear;
-  double gamma = 0.1;
-  std::string device = "cpu";  // "cpu" | "cuda" | "auto"
-  // Lattice levels solved coarse to fine (the paper's hierarchy); 1 = the fine lattice alone.
-  int levels = 1;
+  LatticeOptions lattice;                       // resolution and memory limit of the lattice
+  WeightKind weights = WeightKind::Trilinear;   // vertex binding used by solve()
+  double gamma = 0.1;                           // rigidity, scale-free (> 0)
+  std::string device = "cpu";                   // "cpu" | "cuda" | "auto"
+  int levels = 1;                               // lattice levels solved coarse to fine; 1 = fine only
 };
-
-struct SolveStats {
-  std::vector<double> energy;  // energy after each flip-flop iteration (normalised, see above)
-  int iterations = 0;
-  bool rigid_carry = false;    // the previous pose was carried by the handles' best rigid motion
-  double ms_rotations = 0, ms_rhs = 0, ms_solve = 0, ms_transfer = 0, ms_total = 0;
-  double ms_energy = 0;        // evaluating the energy after each iteration
-  double ms_start = 0;         // choosing the start (rigid carry, rest candidate)
-  double ms_coarse = 0;        // the coarser levels of a hierarchy
-  double ms_factorize = 0;     // last set_handles
-  double ms_lattice = 0, ms_binding = 0;  // construction
-  void clear_solve() {
-    energy.clear();
-    iterations = 0;
-    rigid_carry = false;
-    ms_rotations = ms_rhs = ms_solve = ms_transfer = ms_total = ms_energy = ms_start = ms_coarse = 0;
-  }
-};
-
-class Backend;
-struct HandleSystem;
 
 class Deformer {
  public:
+  // ---------------------------------------------------------------------------- construction
+  // Builds the lattice of `mesh` and binds its vertices. Throws InvalidInput (bad mesh or
+  // options), OutOfMemory (the lattice would not fit), DeviceError (device not available).
   Deformer(PolygonMesh mesh, const DeformerOptions& options);
   ~Deformer();
   Deformer(const Deformer&) = delete;
   Deformer& operator=(const Deformer&) = delete;
 
-  // Handle vertex ids (unique, in range). An empty set is allowed: solve then gives the rest pose.
+  // ---------------------------------------------------------------------------- handles
+  // Handle vertex ids (unique, in range). Factorises the linear system once per set. An empty
+  // set is allowed: solve then gives the rest pose.
   void set_handles(const std::vector<int64_t>& indices);
   // Switch the weights; keeps the lattice pose and re-prepares the current handles.
   void set_weights(WeightKind kind);
@@ -68,6 +58,7 @@ class Deformer {
   // Forget the pose: the next solve starts from rest.
   void reset();
 
+  // ---------------------------------------------------------------------------- posing
   // targets: #handles by 3 row-major; out: #V by 3 row-major. Warm-starts from the last pose.
   // iterations: flip-flop steps; with tolerance > 0 it is the maximum, and the solve stops once
   // an iteration lowers the energy by less than tolerance * energy (converged).
@@ -78,62 +69,23 @@ class Deformer {
   // DeviceError on the CPU backend.
   const float* solve_on_device(const double* targets, int iterations, double tolerance = 0.0);
 
-  const Lattice& lattice() const { return lattice_; }
-  const PolygonMesh& mesh() const { return mesh_; }
-  RowMatrixX3d lattice_deformed() const;
-  const std::vector<int64_t>& handles() const { return handles_; }
-  WeightKind weights() const { return weights_; }
-  double gamma() const { return gamma_; }
-  double diagonal() const { return diagonal_; }
-  std::string device() const;
-  const SolveStats& stats() const { return stats_; }
-  const Binding& binding() const;
-  // Number of lattice levels actually built (coarsening stops at a single cell).
-  int levels() const { return 1 + static_cast<int>(levels_.size()); }
-
-  struct Level {  // a coarser lattice of the hierarchy (internal)
-    Lattice lattice;
-    std::unique_ptr<Backend> backend;
-    std::vector<std::array<int32_t, 8>> prolong_ids;  // per node of the next finer level
-    std::vector<std::array<double, 8>> prolong_w;
-    std::vector<uint8_t> anchored;
-    Level();
-    Level(Level&&) noexcept;
-    ~Level();
-  };
-  // Callers that use one Deformer from several threads lock this around each call (the Python
-  // module does); the class itself is not thread-safe.
-  std::mutex& mutex() const { return mutex_; }
-  // Why device "auto" runs on the CPU although CUDA was tried (empty otherwise).
-  const std::string& fallback_reason() const { return fallback_; }
+  // ---------------------------------------------------------------------------- inspection
+  const Lattice& lattice() const;
+  const PolygonMesh& mesh() const;
+  const Binding& binding() const;          // of the current weight kind
+  RowMatrixX3d lattice_deformed() const;   // #N by 3 node positions of the current pose
+  const std::vector<int64_t>& handles() const;
+  WeightKind weights() const;
+  double gamma() const;
+  double diagonal() const;                 // bounding-box diagonal of the rest mesh
+  std::string device() const;              // the backend that runs: "cpu" or "cuda"
+  const std::string& fallback_reason() const;  // why device "auto" runs on the CPU (else empty)
+  int levels() const;                      // lattice levels built (coarsening stops at one cell)
+  const SolveStats& stats() const;
 
  private:
-  template <typename T>
-  void solve_impl(const double* targets, int iterations, T* out, double tolerance);
-  // Validation, warm start and iterations of a solve; false when there are no handles.
-  bool pose_lattice(const double* targets, int iterations, double tolerance);
-  void prepare_handles();
-  void build_levels(int levels);
-  HandleSystem handle_system(const Lattice& lat, int stencil, std::vector<int32_t> ids,
-                             std::vector<double> weights) const;
-
-  PolygonMesh mesh_;
-  Lattice lattice_;
-  WeightKind weights_;
-  double gamma_;
-  double diagonal_ = 1.0;  // bounding-box diagonal of the rest mesh
-  double size_ = 1.0;      // radius of gyration of the rest vertices (the gamma's length scale)
-  mutable std::unique_ptr<Binding> bindings_[2];
-  std::unique_ptr<Backend> backend_;
-  std::vector<int64_t> handles_;
-  RowMatrixX3d rest_handles_;  // rest positions of the handles
-  bool handles_set_ = false;
-  bool auto_device_ = false;
-  std::string fallback_;
-  std::vector<Level> levels_;          // levels_[k] is level k+1 (cells 2^(k+1) times larger)
-  std::vector<uint8_t> fine_anchored_;
-  mutable std::mutex mutex_;
-  SolveStats stats_;
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
 };
 
 // "cpu" always; "cuda" when built with CUDA and a device is usable.

@@ -21,7 +21,7 @@ struct PolygonMesh {
 // Checks that the mesh is usable by the engine; throws InvalidInput naming the first problem:
 // no vertices, non-finite coordinates, face indices out of range or negative, faces with fewer
 // than one vertex. Repeated indices within a face and degenerate faces are allowed (they are
-// handled, see docs/robustness.md); `what` prefixes the messages ("vertices", a file name, ...).
+// handled, see docs/robustness.md).
 void validate_mesh(const PolygonMesh& mesh);
 
 // Fan triangulation of every face with 3 or more vertices, skipping triangles with repeated

@@ -1,0 +1,116 @@
+#include "hierarchy.h"
+
+#include "backend.h"
+#include "handle_system.h"
+
+namespace larap {
+
+struct Hierarchy::Level {
+  Lattice lattice;
+  std::unique_ptr<Backend> backend;
+  // Prolongation: every node of the next finer level as a trilinear combination of this level's
+  // nodes (the corners of the coarse cell that holds it).
+  std::vector<std::array<int32_t, 8>> prolong_ids;
+  std::vector<std::array<double, 8>> prolong_w;
+  std::vector<uint8_t> anchored;  // empty until handles are set
+
+  // The finer level's displacement for an increment `delta` of this level, zero where
+  // `finer_anchored` holds.
+  RowMatrixX3d prolong(const RowMatrixX3d& delta, const std::vector<uint8_t>& finer_anchored) const {
+    const int64_t nf = static_cast<int64_t>(prolong_ids.size());
+    RowMatrixX3d out = RowMatrixX3d::Zero(nf, 3);
+    for (int64_t i = 0; i < nf; ++i) {
+      if (!finer_anchored.empty() && finer_anchored[i]) continue;
+      for (int q = 0; q < 8; ++q) out.row(i) += prolong_w[i][q] * delta.row(prolong_ids[i][q]);
+    }
+    return out;
+  }
+};
+
+Hierarchy::Hierarchy() = default;
+Hierarchy::~Hierarchy() = default;
+int Hierarchy::size() const { return static_cast<int>(levels_.size()); }
+Hierarchy::Hierarchy(Hierarchy&&) noexcept = default;
+Hierarchy& Hierarchy::operator=(Hierarchy&&) noexcept = default;
+
+Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels) : fine_(&fine) {
+  levels_.reserve(size_t(std::max(levels - 1, 0)));  // `finer` points into levels_: no reallocation
+  const Lattice* finer = &fine;
+  for (int k = 1; k < levels; ++k) {
+    if (finer->num_cells() <= 1) break;
+    levels_.emplace_back();
+    Level& lv = levels_.back();
+    lv.lattice = finer->coarsened();
+    // Every node of the finer level through the parent of a kept finer cell that has it as a corner.
+    const int64_t nf = finer->num_nodes();
+    lv.prolong_ids.assign(size_t(nf), {});
+    lv.prolong_w.assign(size_t(nf), {});
+    std::vector<uint8_t> done(size_t(nf), 0);
+    for (int64_t c = 0; c < finer->num_cells(); ++c) {
+      const Eigen::Vector3i parent = finer->cell_coords[c] / 2;
+      const int32_t pc = lv.lattice.cell_at(parent.x(), parent.y(), parent.z());
+      for (int corner = 0; corner < 8; ++corner) {
+        const int32_t i = finer->cell_nodes[c][corner];
+        if (done[i]) continue;
+        done[i] = 1;
+        const Eigen::Vector3d f = 0.5 * (finer->node_coords[i] - 2 * parent).cast<double>();  // in [0,1]
+        for (int q = 0; q < 8; ++q) {
+          lv.prolong_ids[i][q] = lv.lattice.cell_nodes[pc][q];
+          lv.prolong_w[i][q] = ((q & 1) ? f.x() : 1 - f.x()) * (((q >> 1) & 1) ? f.y() : 1 - f.y()) *
+                               ((q >> 2) ? f.z() : 1 - f.z());
+        }
+      }
+    }
+    lv.backend = make_cpu_backend(lv.lattice, vertices);
+    finer = &lv.lattice;
+  }
+}
+
+void Hierarchy::set_handles(const RowMatrixX3d& rest_handles, double gamma, double size) {
+  const int64_t m = rest_handles.rows();
+  for (auto& lv : levels_) {
+    lv.anchored.clear();
+    if (m == 0) continue;
+    const Binding hb = bind_vertices(lv.lattice, rest_handles, WeightKind::Trilinear);
+    std::vector<int32_t> ids(size_t(m) * 8);
+    std::vector<double> w(ids.size());
+    for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
+    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), gamma, size);
+    lv.anchored = hs.anchored;
+    lv.backend->set_handles(hs);
+  }
+}
+
+void Hierarchy::reset() {
+  for (auto& lv : levels_) lv.backend->set_pose(lv.lattice.rest);
+}
+
+void Hierarchy::apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
+  for (auto& lv : levels_) lv.backend->apply_rigid(R, t);
+}
+
+void Hierarchy::restart_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
+  for (auto& lv : levels_) {
+    lv.backend->set_pose(lv.lattice.rest);
+    lv.backend->apply_rigid(R, t);
+  }
+}
+
+RowMatrixX3d Hierarchy::solve_increment(const RowMatrixX3d& targets, int iterations,
+                                        const std::vector<uint8_t>& fine_anchored) {
+  SolveStats scratch;
+  RowMatrixX3d delta;  // increment of the level just solved, in its nodes
+  for (int l = size() - 1; l >= 0; --l) {
+    Level& lv = levels_[l];
+    RowMatrixX3d start;
+    lv.backend->get_pose(start);
+    if (l + 1 < size()) lv.backend->set_pose(start + levels_[l + 1].prolong(delta, lv.anchored));
+    lv.backend->iterate(targets, std::max(iterations, 1), scratch);
+    RowMatrixX3d after;
+    lv.backend->get_pose(after);
+    delta = after - start;
+  }
+  return levels_[0].prolong(delta, fine_anchored);
+}
+
+}  // namespace larap

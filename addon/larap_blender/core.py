@@ -21,260 +21,14 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from . import engine
+from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, check_object, engine_errors, require_engine
+from .mesh_data import (apply_offsets, array_hash, block_positions, ensure_pose_key, key_positions, mesh_positions,
+                        remove_pose_key, rest_positions, restore_pose_key, selected_vertices, set_mesh_positions,
+                        topology_arrays, topology_hash, triangles, vertex_group_weights, write_block, write_key,
+                        write_pose)
 
 HANDLE_GROUP_PREFIX = "LARAP_handle_"
 TARGET_PREFIX = "LARAP_target_"
-ENGINE_ERRORS = (ValueError, MemoryError, RuntimeError, TypeError)
-
-
-class LarapError(Exception):
-    """A failure to report to the user (no traceback)."""
-
-
-class TopologyChanged(LarapError):
-    pass
-
-
-# ----------------------------------------------------------------------------------------------
-# Validation
-
-def check_object(obj, *, need_bound=False, allow_edit_mode=False):
-    if obj is None:
-        raise LarapError("No active object")
-    try:
-        obj_type = obj.type
-    except ReferenceError:
-        raise LarapError("The object was deleted")
-    if obj_type != "MESH":
-        raise LarapError("LARAP works on meshes; %r is a %s" % (obj.name, obj_type.lower()))
-    if obj.library is not None or obj.data.library is not None:
-        raise LarapError("%r is linked from a library and not editable (make it local or override it)" % obj.name)
-    if obj.mode == "EDIT" and not allow_edit_mode:
-        raise LarapError("%r is in Edit Mode; switch to Object Mode first" % obj.name)
-    if need_bound and not obj.larap.bound:
-        raise LarapError("%r is not bound; use LARAP > Bind first" % obj.name)
-    return obj
-
-
-def _engine():
-    mod = engine.get()
-    if mod is None:
-        raise LarapError(engine.error())
-    return mod
-
-
-@contextlib.contextmanager
-def engine_errors(what):
-    """Turn engine exceptions into LarapError with the engine's message."""
-    try:
-        yield
-    except LarapError:
-        raise
-    except MemoryError as exc:
-        raise LarapError("%s: out of memory (%s); use fewer lattice cells" % (what, exc or "lattice too large"))
-    except ENGINE_ERRORS as exc:
-        raise LarapError("%s: %s" % (what, exc))
-
-
-# ----------------------------------------------------------------------------------------------
-# Mesh data (numpy, float32 buffers)
-
-def _get(collection, attr, count, dtype, width=1):
-    buf = np.empty(count * width, dtype=dtype)
-    collection.foreach_get(attr, buf)
-    return buf if width == 1 else buf.reshape(count, width)
-
-
-def rest_positions(obj):
-    """(n,3) float32 rest positions: the Basis key, or the mesh vertices when there are no keys."""
-    me = obj.data
-    n = len(me.vertices)
-    keys = me.shape_keys
-    if keys is not None and keys.reference_key is not None:
-        return _get(keys.reference_key.data, "co", n, np.float32, 3)
-    return _get(me.vertices, "co", n, np.float32, 3)
-
-
-def key_positions(obj, name):
-    me = obj.data
-    kb = me.shape_keys.key_blocks.get(name) if me.shape_keys else None
-    if kb is None:
-        return None
-    return _get(kb.data, "co", len(me.vertices), np.float32, 3)
-
-
-def _topology_arrays(me):
-    totals = _get(me.polygons, "loop_total", len(me.polygons), np.int32)
-    starts = _get(me.polygons, "loop_start", len(me.polygons), np.int32)
-    verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
-    return starts, totals, verts
-
-
-def topology_hash(me, arrays=None):
-    starts, totals, verts = arrays or _topology_arrays(me)
-    h = hashlib.blake2b(digest_size=16)
-    h.update(np.array([len(me.vertices), len(me.polygons), len(me.loops)], dtype=np.int64).tobytes())
-    h.update(totals.tobytes())
-    h.update(verts.tobytes())
-    return h.hexdigest()
-
-
-def triangles(me, arrays=None):
-    """(m,3) int32 fan triangulation of all polygons (empty for point clouds / edge meshes)."""
-    starts, totals, verts = arrays or _topology_arrays(me)
-    ntri = np.maximum(totals.astype(np.int64) - 2, 0)
-    total = int(ntri.sum())
-    if total == 0:
-        return np.zeros((0, 3), dtype=np.int32)
-    poly = np.repeat(np.arange(len(totals)), ntri)
-    k = np.arange(total) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-    s = starts.astype(np.int64)[poly]
-    tris = np.stack([verts[s], verts[s + k + 1], verts[s + k + 2]], axis=1)
-    return np.ascontiguousarray(tris, dtype=np.int32)
-
-
-def _array_hash(a):
-    return hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest()
-
-
-def vertex_group_weights(obj, names):
-    """{name: (n,) float32 weights} for vertex groups, without a Python loop over vertices.
-
-    Blender exposes vertex-group membership only per vertex, so this lets Blender's shape-key
-    mixer do it in C: a temporary key = Basis + (0,0,1) masked by the group, mixed alone with
-    ``shape_key_add(from_mix=True)``, gives Basis + weight * (0,0,1). The temporary keys are
-    removed and the mesh's shape-key state is restored.
-    """
-    me = obj.data
-    n = len(me.vertices)
-    out = {}
-    names = [nm for nm in dict.fromkeys(names) if nm in obj.vertex_groups]
-    if not names or n == 0:
-        return out
-    had_keys = me.shape_keys is not None
-    active_index = obj.active_shape_key_index
-    show_only = obj.show_only_shape_key
-    if not had_keys:
-        obj.shape_key_add(name="Basis", from_mix=False)
-    key = me.shape_keys
-    basis = key.reference_key
-    use_relative = key.use_relative
-    saved_mutes = [(kb.name, kb.mute) for kb in key.key_blocks]
-    base = _get(basis.data, "co", n, np.float32, 3)
-    raised = (base + np.array([0.0, 0.0, 1.0], dtype=np.float32)).ravel()
-    try:
-        key.use_relative = True
-        obj.show_only_shape_key = False
-        for kb in key.key_blocks:
-            if kb != basis:
-                kb.mute = True
-        basis_mute = basis.mute
-        basis.mute = False
-        for name in names:
-            tmp = obj.shape_key_add(name="_larap_tmp", from_mix=False)
-            mix = None
-            try:
-                tmp.data.foreach_set("co", raised)
-                tmp.relative_key = basis
-                tmp.vertex_group = name
-                tmp.slider_min, tmp.slider_max = 0.0, 1.0
-                tmp.value = 1.0
-                tmp.mute = False
-                mix = obj.shape_key_add(name="_larap_mix", from_mix=True)
-                mixed = _get(mix.data, "co", n, np.float32, 3)
-            finally:
-                if mix is not None:
-                    obj.shape_key_remove(mix)
-                obj.shape_key_remove(tmp)
-            out[name] = (mixed[:, 2] - base[:, 2]).astype(np.float32)
-        basis.mute = basis_mute
-    finally:
-        if not had_keys:
-            obj.shape_key_clear()
-        else:
-            key.use_relative = use_relative
-            for name, mute in saved_mutes:
-                kb = key.key_blocks.get(name)
-                if kb is not None:
-                    kb.mute = mute
-            obj.active_shape_key_index = active_index
-        obj.show_only_shape_key = show_only
-    return out
-
-
-def selected_vertices(obj):
-    me = obj.data
-    if obj.mode == "EDIT":
-        obj.update_from_editmode()
-    sel = _get(me.vertices, "select", len(me.vertices), bool)
-    return np.flatnonzero(sel)
-
-
-# ----------------------------------------------------------------------------------------------
-# Shape keys
-
-def ensure_pose_key(obj, settings=None):
-    """Basis (created from the mesh if there are no keys) and the pose key, relative to Basis."""
-    s = settings or obj.larap
-    me = obj.data
-    if not s.shape_key:
-        raise LarapError("The pose shape key has no name (LARAP > Settings > Shape Key)")
-    keys = me.shape_keys
-    kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
-    if kb is not None:
-        if kb == keys.reference_key:
-            raise LarapError("The pose shape key %r is the Basis key; choose another name" % s.shape_key)
-        if kb.name != s.owned_key_name:
-            if s.bound and not s.owned_key_name:
-                s.owned_key_name = kb.name  # bound by an add-on version that did not record ownership
-            else:
-                raise LarapError("%r already has a shape key %r that LARAP did not create; LARAP does not "
-                                 "overwrite it: rename that key or set another pose key name "
-                                 "(LARAP > Settings > Shape Key)" % (obj.name, s.shape_key))
-        return kb, False
-    created_basis = False
-    if me.shape_keys is None:
-        obj.shape_key_add(name="Basis", from_mix=False)
-        created_basis = True
-    keys = me.shape_keys
-    kb = obj.shape_key_add(name=s.shape_key, from_mix=False)
-    kb.relative_key = keys.reference_key
-    kb.value = 1.0
-    s.owned_key_name = kb.name
-    return kb, created_basis
-
-
-def write_pose(obj, co, settings=None):
-    """Write (n,3) positions into the pose key with one foreach_set and tag the mesh."""
-    kb, _ = ensure_pose_key(obj, settings)
-    buf = co if (co.dtype == np.float32 and co.flags.c_contiguous) else np.ascontiguousarray(co, dtype=np.float32)
-    kb.data.foreach_set("co", buf.reshape(-1))
-    obj.data.update_tag()
-    return kb
-
-
-def _remove_pose_key(obj):
-    """Remove only what LARAP made: its pose key, and the Basis when bind created it and no other
-    key is left (the mesh keeps the Basis positions)."""
-    s = obj.larap
-    keys = obj.data.shape_keys
-    if keys is None:
-        s.owned_key_name = ""
-        s.created_basis = False
-        return
-    owned = s.owned_key_name or (s.shape_key if s.bound else "")
-    kb = keys.key_blocks.get(owned) if owned else None
-    if kb is not None and kb != keys.reference_key:
-        obj.shape_key_remove(kb)
-    keys = obj.data.shape_keys
-    if s.created_basis and keys is not None and len(keys.key_blocks) == 1:
-        me = obj.data
-        co = _get(keys.reference_key.data, "co", len(me.vertices), np.float32, 3)
-        obj.shape_key_clear()
-        me.vertices.foreach_set("co", co.reshape(-1))
-    s.owned_key_name = ""
-    s.created_basis = False
 
 
 # ----------------------------------------------------------------------------------------------
@@ -289,7 +43,7 @@ _POINT_FIELDS = ("co", "interpolation", "handle_left_type", "handle_right_type",
 def _snapshot(obj):
     me = obj.data
     s = obj.larap
-    snap = {"co": _get(me.vertices, "co", len(me.vertices), np.float32, 3),
+    snap = {"mesh": mesh_positions(me),
             "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
             "handles": [(tuple(h.rest_matrix), h.has_rest) for h in s.handles],
             "active_shape_key_index": obj.active_shape_key_index,
@@ -301,7 +55,7 @@ def _snapshot(obj):
     if keys is not None:
         n = len(me.vertices)
         snap["use_relative"] = keys.use_relative
-        snap["keys"] = [(kb.name, _get(kb.data, "co", n, np.float32, 3),
+        snap["keys"] = [(kb.name, block_positions(kb, n),
                          kb.relative_key.name if kb.relative_key else "",
                          {f: getattr(kb, f) for f in _KEY_FIELDS}) for kb in keys.key_blocks]
         ad = keys.animation_data
@@ -333,7 +87,7 @@ def _restore(obj, snap):
         keys.use_relative = snap["use_relative"]
         for name, co, rel, props in snap["keys"]:
             kb = keys.key_blocks[name]
-            kb.data.foreach_set("co", co.reshape(-1))
+            write_block(kb, co)
             kb.slider_min = -10.0
             for f in _KEY_FIELDS:
                 setattr(kb, f, props[f])
@@ -359,7 +113,7 @@ def _restore(obj, snap):
                     for f in _POINT_FIELDS:
                         setattr(kp, f, p[f])
                 fc.update()
-    me.vertices.foreach_set("co", snap["co"].reshape(-1))
+    set_mesh_positions(me, snap["mesh"])
     obj.show_only_shape_key = snap["show_only_shape_key"]
     obj.active_shape_key_index = snap["active_shape_key_index"]
     for f, v in snap["settings"].items():
@@ -544,7 +298,7 @@ def _settings_sig(s):
 
 
 def _build_deformer(obj, rest, tris):
-    mod = _engine()
+    mod = require_engine()
     s = obj.larap
     kwargs = dict(gamma=float(s.gamma), device=resolve_device(s), weights=s.weights_interactive)
     if s.resolution_mode == "CELLS":
@@ -576,12 +330,12 @@ def ensure_runtime(obj, validate="full"):
     if (validate == "fast" and rt is not None and rt.deformer is not None and rt.validated
             and rt.pointer == pointer and rt.counts == counts and rt.settings_sig == sig):
         return rt
-    arrays = _topology_arrays(me)
+    arrays = topology_arrays(me)
     topo = topology_hash(me, arrays)
     if topo != s.bind_topology:
         raise TopologyChanged("%r changed topology since bind (faces differ); rebind it (LARAP > Bind)" % obj.name)
     rest = rest_positions(obj)
-    rest_hash = _array_hash(rest)
+    rest_hash = array_hash(rest)
     if rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash or rt.topology != topo:
         new = Runtime()
         new.deformer = _build_deformer(obj, rest, triangles(me, arrays))
@@ -816,9 +570,9 @@ def bind(obj):
 def _bind(obj):
     s = obj.larap
     me = obj.data
-    _engine()
+    require_engine()
     key = _claim_key(obj)
-    arrays = _topology_arrays(me)
+    arrays = topology_arrays(me)
     rest = rest_positions(obj)
     rt = Runtime()
     rt.deformer = _build_deformer(obj, rest, triangles(me, arrays))
@@ -831,7 +585,7 @@ def _bind(obj):
     rt.settings_sig = _settings_sig(s)
     rt.topology = topology_hash(me, arrays)
     rt.rest = rest
-    rt.rest_hash = _array_hash(rest)
+    rt.rest_hash = array_hash(rest)
     rt.out = np.empty_like(rest)
     rt.validated = True
     _RUNTIMES[key] = rt
@@ -858,7 +612,7 @@ def unbind(obj):
     key is left) and forget the engine. Handles, their vertex groups and targets, other shape keys,
     modifiers and every other object are kept."""
     check_object(obj)
-    _remove_pose_key(obj)
+    remove_pose_key(obj)
     obj.larap.bound = False
     drop_runtime(obj)
 
@@ -997,15 +751,8 @@ def bake_shape_key(obj, name="LARAP_pose", *, overwrite=False):
     if keys is not None and name in keys.key_blocks and not overwrite:
         raise LarapError("Shape key %r exists; choose another name or enable Overwrite" % name)
     with preserve_on_error(obj):
-        co = current_pose(obj)
-        keys = obj.data.shape_keys
-        kb = keys.key_blocks.get(name)
-        if kb is None:
-            kb = obj.shape_key_add(name=name, from_mix=False)
-        kb.data.foreach_set("co", co.reshape(-1))
-        kb.relative_key = keys.reference_key
+        kb = write_key(obj, name, current_pose(obj))
         kb.value = 0.0
-        obj.data.update_tag()
     return kb
 
 
@@ -1066,14 +813,9 @@ def _bake_animation(obj, scene, frames, step, prefix):
                 scene.frame_set(f)
                 solve(obj, weights="final", validate="full" if first else "fast")
                 first = False
-                co = runtime(obj).out
-                keys = obj.data.shape_keys
                 name = "%s%04d" % (prefix, f)
-                kb = keys.key_blocks.get(name)
-                if kb is None:
-                    kb = obj.shape_key_add(name=name, from_mix=False)
-                kb.data.foreach_set("co", co.reshape(-1))
-                kb.relative_key = keys.reference_key
+                kb = write_key(obj, name, runtime(obj).out)
+                keys = obj.data.shape_keys
                 path = 'key_blocks["%s"].value' % name
                 ad = keys.animation_data
                 if ad is not None and ad.action is not None:
@@ -1106,19 +848,10 @@ def apply_pose(obj):
 def _apply_pose(obj):
     pose = current_pose(obj)
     rt = runtime(obj)
-    delta = pose - rt.rest
     me = obj.data
     s = obj.larap
-    n = len(me.vertices)
-    keys = me.shape_keys
-    if keys is not None:
-        for kb in keys.key_blocks:
-            if kb.name == s.shape_key:
-                continue
-            co = _get(kb.data, "co", n, np.float32, 3)
-            kb.data.foreach_set("co", (co + delta).astype(np.float32).reshape(-1))
-    me.vertices.foreach_set("co", pose.reshape(-1))
-    _remove_pose_key(obj)
+    apply_offsets(obj, pose, rt.rest, skip=s.shape_key)
+    remove_pose_key(obj)
     for h in s.handles:
         h.has_rest = False
     s.bound = False
@@ -1313,18 +1046,7 @@ class PoseSession:
             return
         obj = self.obj
         _transform_restore(self.target, self.bone, self.transform)
-        s = obj.larap
-        if self.key_existed:
-            kb = obj.data.shape_keys.key_blocks.get(s.shape_key)
-            if kb is None:
-                kb, _ = ensure_pose_key(obj, s)
-            kb.data.foreach_set("co", self.snapshot.reshape(-1))
-        else:
-            keys = obj.data.shape_keys
-            kb = keys.key_blocks.get(s.shape_key) if keys else None
-            if kb is not None:
-                obj.shape_key_remove(kb)
-        obj.data.update_tag()
+        restore_pose_key(obj, self.snapshot)
         rt = runtime(obj)
         if rt is not None:
             rt.target_sig = None

@@ -26,6 +26,8 @@ from .mesh_data import (apply_offsets, array_hash, block_positions, ensure_pose_
                         remove_pose_key, rest_positions, restore_pose_key, selected_vertices, set_mesh_positions,
                         topology_arrays, topology_hash, triangles, vertex_group_weights, write_block, write_key,
                         write_pose)
+from .targets import (flat, gather, handle_local_transform, membership, record_rest, target_alive, target_matrix,
+                      target_names, target_signature)
 
 HANDLE_GROUP_PREFIX = "LARAP_handle_"
 TARGET_PREFIX = "LARAP_target_"
@@ -357,128 +359,6 @@ def ensure_runtime(obj, validate="full"):
     return rt
 
 
-def _membership(obj, rt):
-    s = obj.larap
-    names = tuple(h.vertex_group for h in s.handles if h.enabled and h.vertex_group)
-    available = tuple(nm for nm in names if nm in obj.vertex_groups)
-    if rt.membership_sig != available:
-        weights = vertex_group_weights(obj, available)
-        rt.membership = {nm: np.flatnonzero(w > 0.0) for nm, w in weights.items()}
-        rt.membership_sig = available
-    return rt.membership
-
-
-# ----------------------------------------------------------------------------------------------
-# Targets
-
-def _flat(m):
-    return [m[i][j] for i in range(4) for j in range(4)]
-
-
-def _matrix(flat):
-    return Matrix([flat[0:4], flat[4:8], flat[8:12], flat[12:16]])
-
-
-def target_alive(target):
-    if target is None:
-        return False
-    try:
-        return len(target.users_scene) > 0
-    except ReferenceError:
-        return False
-
-
-def target_matrix(handle, overrides=None):
-    """World matrix of a handle's target now, or raise LarapError (missing target/bone)."""
-    t = handle.target
-    if not target_alive(t):
-        raise LarapError("handle %r has no target (deleted?)" % handle.vertex_group)
-    key = (t.name_full, handle.subtarget)
-    if overrides and key in overrides:
-        return overrides[key]
-    if handle.subtarget:
-        if t.type != "ARMATURE" or t.pose is None or handle.subtarget not in t.pose.bones:
-            raise LarapError("handle %r: bone %r not found in %r" % (handle.vertex_group, handle.subtarget, t.name))
-        return t.matrix_world @ t.pose.bones[handle.subtarget].matrix
-    return t.matrix_world.copy()
-
-
-def handle_local_transform(obj, handle, overrides=None):
-    """Target motion since bind, expressed in the mesh object's local space (4x4 numpy)."""
-    now = target_matrix(handle, overrides)
-    rest = _matrix(handle.rest_matrix)
-    mw = obj.matrix_world
-    local = mw.inverted_safe() @ now @ rest.inverted_safe() @ mw
-    return np.array(local, dtype=np.float64)
-
-
-def record_rest(handle, overrides=None):
-    handle.rest_matrix = _flat(target_matrix(handle, overrides))
-    handle.has_rest = True
-
-
-def _gather(obj, rt, overrides=None):
-    """Handle indices (unique, first group wins) and their target positions; warnings for skipped handles."""
-    s = obj.larap
-    membership = _membership(obj, rt)
-    warnings = []
-    idx_parts, tgt_parts = [], []
-    for h in s.handles:
-        if not h.enabled:
-            continue
-        label = h.vertex_group or "(no group)"
-        if h.vertex_group not in obj.vertex_groups:
-            warnings.append("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
-                            "again in the handle's settings)" % label)
-            continue
-        idx = membership.get(h.vertex_group)
-        if idx is None or len(idx) == 0:
-            warnings.append("handle %r skipped: vertex group is empty" % label)
-            continue
-        if not h.has_rest:
-            warnings.append("handle %r skipped: not bound (rebind)" % label)
-            continue
-        try:
-            local = handle_local_transform(obj, h, overrides)
-        except LarapError as exc:
-            warnings.append("%s; skipped" % exc)
-            continue
-        p = rt.rest[idx].astype(np.float64)
-        idx_parts.append(idx)
-        tgt_parts.append(p @ local[:3, :3].T + local[:3, 3])
-    if not idx_parts:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), warnings
-    idx = np.concatenate(idx_parts)
-    tgt = np.concatenate(tgt_parts)
-    uniq, first = np.unique(idx, return_index=True)
-    return uniq.astype(np.int64), np.ascontiguousarray(tgt[first]), warnings
-
-
-def target_signature(obj):
-    """Current target matrices of an object's handles (to skip redundant live solves)."""
-    sig = [tuple(obj.matrix_world.col[3]) + tuple(obj.matrix_world.col[0]) + tuple(obj.matrix_world.col[1])
-           + tuple(obj.matrix_world.col[2])]
-    for h in obj.larap.handles:
-        try:
-            m = target_matrix(h)
-            sig.append(tuple(_flat(m)))
-        except LarapError:
-            sig.append(None)
-    return tuple(sig)
-
-
-def target_names(obj):
-    names = set()
-    for h in obj.larap.handles:
-        t = h.target
-        try:
-            if t is not None:
-                names.add(t.name_full)
-        except ReferenceError:
-            pass
-    return names
-
-
 # ----------------------------------------------------------------------------------------------
 # Operations
 
@@ -507,7 +387,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
     t0 = time.perf_counter()
     rt = ensure_runtime(obj, validate)
     d = rt.deformer
-    idx, tgt, warnings = _gather(obj, rt, overrides)
+    idx, tgt, warnings = gather(obj, rt, overrides)
     wname = _weights_name(s, weights)
     engine_ms = 0.0
     with engine_errors("Solve failed"):
@@ -708,7 +588,7 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
     h.target = target
     h.subtarget = subtarget
     if rest_matrix is not None:
-        h.rest_matrix = _flat(rest_matrix)
+        h.rest_matrix = flat(rest_matrix)
         h.has_rest = True
     else:
         record_rest(h)
@@ -920,10 +800,10 @@ def handle_points(obj, refresh=True):
     posed = key_positions(obj, s.shape_key)
     if posed is None:
         posed = rt.rest
-    membership = _membership(obj, rt) if refresh else rt.membership
+    groups = membership(obj, rt) if refresh else rt.membership
     pts, owner = [], []
     for i, h in enumerate(s.handles):
-        idx = membership.get(h.vertex_group)
+        idx = groups.get(h.vertex_group)
         if idx is None or len(idx) == 0 or not h.enabled:
             continue
         pts.append(posed[idx])
@@ -993,7 +873,7 @@ class PoseSession:
         self.snapshot = key_positions(obj, s.shape_key) if self.key_existed else None
         self.transform = _transform_snapshot(self.target, self.bone)
         self.start_matrix = target_matrix(h)
-        idx = _membership(obj, rt).get(h.vertex_group)
+        idx = membership(obj, rt).get(h.vertex_group)
         if idx is None or len(idx) == 0:
             raise LarapError("Handle %r has no vertices" % h.vertex_group)
         posed = self.snapshot if self.snapshot is not None else rt.rest

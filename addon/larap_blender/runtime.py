@@ -6,6 +6,11 @@ Engine objects are never stored in the .blend. A :class:`Runtime` is keyed by
 against the object's pointer (a duplicate, which copies the id, gets a new one). It is built
 lazily by :func:`ensure_runtime` from the stored settings: after bind, reloading a .blend, an
 undo, a settings change, or an edit of the rest positions.
+
+The Runtime also keeps, on the Python side, what the engine holds: the handle ids, the weights
+and gamma it was last given (``engine_handles``, ``engine_weights``, ``engine_gamma``).
+:meth:`Runtime.set_engine_state` calls the engine only when one of them changed, so a solve never
+reads the engine's state back to compare.
 """
 import uuid
 
@@ -38,6 +43,27 @@ class Runtime:
         self.warnings = []
         self.validated = False  # False: the next ensure_runtime does a full validation
         self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
+        # What the engine holds (None: unknown, set it again before the next solve).
+        self.engine_handles = None
+        self.engine_weights = None
+        self.engine_gamma = None
+
+    def set_engine_state(self, handles, weights, gamma):
+        """Give the engine these handle ids (int64), weights and gamma, calling it only for what
+        changed. A call that raises leaves that entry unknown, so the next solve sets it again."""
+        d = self.deformer
+        if self.engine_handles is None or not np.array_equal(self.engine_handles, handles):
+            self.engine_handles = None
+            d.set_handles(handles)
+            self.engine_handles = handles.copy()
+        if self.engine_weights != weights:
+            self.engine_weights = None
+            d.weights = weights
+            self.engine_weights = weights
+        if self.engine_gamma != gamma:
+            self.engine_gamma = None
+            d.gamma = gamma
+            self.engine_gamma = gamma
 
 
 _RUNTIMES = {}
@@ -208,6 +234,7 @@ def _new_runtime(obj, rest, tris):
     rt = Runtime()
     with engine_errors("Bind failed"):
         rt.deformer = mod.Deformer(rest, faces, **kwargs)
+    rt.engine_weights, rt.engine_gamma = weights, gamma
     rt.weights = weights
     return rt
 

@@ -51,13 +51,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
             warnings.append("no usable handles: rest pose written")
             np.copyto(rt.out, rt.rest)
         else:
-            current = np.asarray(d.handles)
-            if current.shape != idx.shape or not np.array_equal(current, idx):
-                d.set_handles(idx)
-            if d.weights != wname:
-                d.weights = wname
-            if abs(float(d.gamma) - float(s.gamma)) > 1e-12 * max(1.0, float(s.gamma)):
-                d.gamma = float(s.gamma)
+            rt.set_engine_state(idx, wname, float(s.gamma))
             if weights == "final":
                 # The final pose converges (up to 10x the interactive iterations), so solving
                 # again from the same targets gives the same pose.

@@ -18,7 +18,7 @@ from mathutils import Matrix, Vector
 from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, check_object, engine_errors
 from .handlers import live_suspended, live_update, suspend_live
 from .mesh_data import (apply_offsets, ensure_pose_key, key_positions, remove_pose_key, rest_positions,
-                        selected_vertices, topology_hash, triangles, vertex_group_weights, write_key, write_pose)
+                        selected_vertices, topology_hash, polygons, vertex_group_weights, write_key, write_pose)
 from .runtime import (_RUNTIMES, Runtime, after_undo, build_runtime, drop_runtime, ensure_runtime,
                       prune_runtimes, resolve_device, runtime)
 from .session import PoseSession, handle_points
@@ -34,7 +34,7 @@ __all__ = [
     # re-exported from the rooms below, for scripts and tests that use ``core.<name>``
     "ENGINE_ERRORS", "LarapError", "TopologyChanged", "check_object", "engine_errors",
     "live_suspended", "live_update", "suspend_live",
-    "ensure_pose_key", "key_positions", "rest_positions", "selected_vertices", "topology_hash", "triangles",
+    "ensure_pose_key", "key_positions", "rest_positions", "selected_vertices", "topology_hash", "polygons",
     "vertex_group_weights", "write_pose",
     "_RUNTIMES", "Runtime", "after_undo", "drop_runtime", "ensure_runtime", "prune_runtimes",
     "resolve_device", "runtime",

@@ -79,18 +79,17 @@ def topology_hash(me, arrays=None):
     return h.hexdigest()
 
 
-def triangles(me, arrays=None):
-    """(m,3) int32 fan triangulation of all polygons (empty for point clouds / edge meshes)."""
+def polygons(me, arrays=None):
+    """Blender's polygons as the engine takes them: (vertex ids (L,), offsets (P+1,)), polygon p
+    being ids[offsets[p]:offsets[p+1]]. Blender stores each polygon's loops contiguously and in
+    polygon order, so this is its own loop array, handed over without triangulating."""
     starts, totals, verts = arrays or topology_arrays(me)
-    ntri = np.maximum(totals.astype(np.int64) - 2, 0)
-    total = int(ntri.sum())
-    if total == 0:
-        return np.zeros((0, 3), dtype=np.int32)
-    poly = np.repeat(np.arange(len(totals)), ntri)
-    k = np.arange(total) - np.repeat(np.cumsum(ntri) - ntri, ntri)
-    s = starts.astype(np.int64)[poly]
-    tris = np.stack([verts[s], verts[s + k + 1], verts[s + k + 2]], axis=1)
-    return np.ascontiguousarray(tris, dtype=np.int32)
+    offsets = np.zeros(len(totals) + 1, dtype=np.int64)
+    np.cumsum(totals, out=offsets[1:])
+    if len(starts) and not np.array_equal(starts, offsets[:-1]):  # not in order: gather it
+        idx = np.repeat(starts.astype(np.int64) - offsets[:-1], totals) + np.arange(offsets[-1])
+        verts = verts[idx]
+    return verts, offsets
 
 
 # ----------------------------------------------------------------------------------------------

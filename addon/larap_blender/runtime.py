@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 
 from .errors import TopologyChanged, engine_errors, require_engine
-from .mesh_data import array_hash, rest_positions, topology_arrays, topology_hash, triangles
+from .mesh_data import array_hash, polygons, rest_positions, topology_arrays, topology_hash
 from .targets import target_signature
 
 
@@ -219,7 +219,7 @@ def _settings_sig(s):
     return res + (resolve_device(s),)
 
 
-def _new_runtime(obj, rest, tris):
+def _new_runtime(obj, rest, faces):
     """A Runtime holding a new engine for the rest shape ``rest`` (what the engine was given
     recorded), not yet registered."""
     mod = require_engine()
@@ -230,10 +230,10 @@ def _new_runtime(obj, rest, tris):
         kwargs["cells"] = int(s.cells)
     elif s.resolution_mode == "SIZE":
         kwargs["cell_size"] = float(s.cell_size)
-    faces = tris if len(tris) else np.zeros((0, 3), dtype=np.int32)
+    ids, offsets = faces
     rt = Runtime()
     with engine_errors("Bind failed"):
-        rt.deformer = mod.Deformer(rest, faces, **kwargs)
+        rt.deformer = mod.Deformer(rest, ids, face_offsets=offsets, **kwargs)
     rt.engine_weights, rt.engine_gamma = weights, gamma
     rt.weights = weights
     return rt
@@ -250,7 +250,7 @@ def _refresh(obj, key, arrays, topo, rebuild):
     rt = _RUNTIMES.get(key)
     if (rebuild or rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash
             or rt.topology != topo):
-        new = _new_runtime(obj, rest, triangles(me, arrays))
+        new = _new_runtime(obj, rest, polygons(me, arrays))
         if rt is not None:
             new.pose_version = rt.pose_version + 1
         rt = new

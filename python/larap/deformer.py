@@ -233,6 +233,16 @@ class Deformer:
         """(N, 3) lattice node positions of the current pose."""
         return self._core.lattice_deformed()
 
+    def cell_nodes(self) -> np.ndarray:
+        """(C, 8) int32 corner node ids of every lattice cell; corner c = (c & 1, c >> 1 & 1, c >> 2)."""
+        return self._core.cell_nodes()
+
+    def trilinear_binding(self) -> tuple[np.ndarray, np.ndarray]:
+        """The trilinear binding as arrays, for drawing the pose on the GPU: per vertex its cell
+        (n,) int32 and its position in that cell (n, 3) float32 in [0, 1]^3. A vertex moves by
+        the trilinear blend of its cell's corner displacements (cell_nodes)."""
+        return self._core.trilinear_binding()
+
     def lattice_edges(self) -> np.ndarray:
         """(E, 2) node index pairs of the lattice edges (the ARAP neighbourhood)."""
         return self._core.lattice_edges()

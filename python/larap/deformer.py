@@ -171,6 +171,14 @@ class Deformer:
                 raise ValueError("out must be C-contiguous and writeable")
         return self._core.solve(T, iterations, out, tol)
 
+    def pose_lattice(self, targets, iterations: int = 5, *, tol=None) -> np.ndarray:
+        """The same solve without the transfer to the vertices: poses the lattice only and returns
+        its (N, 3) node positions (what a preview draws from, with cell_nodes() and
+        trilinear_binding()). The next solve() warm-starts from this pose."""
+        T, iterations, tol = self._solve_args("pose_lattice", targets, iterations, tol)
+        self._core.pose(T, iterations, tol)
+        return self._core.lattice_deformed()
+
     def solve_on_device(self, targets, iterations: int = 5, *, tol=None):
         """The same solve, leaving the positions on the GPU (device="cuda" only): returns a
         DeviceArray, (n, 3) float32 in device memory owned by this Deformer and valid until its

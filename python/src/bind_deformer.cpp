@@ -162,6 +162,12 @@ void bind_deformer(py::module_& m) {
            py::arg("tolerance") = 0.0)
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0)
+      .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance) {
+             const int64_t m = static_cast<int64_t>(self.engine.handles().size());
+             require_rows3(targets.request(), "targets", m);
+             const double* t = targets.data();
+             self.locked([&](D& d) { d.pose(t, iterations, tolerance); });
+           }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0)
       .def("reset", [](PyDeformer& self) { self.locked([](D& d) { d.reset(); }); })
       .def_property(
           "weights", [](const PyDeformer& self) { return std::string(larap::weight_kind_name(self.engine.weights())); },

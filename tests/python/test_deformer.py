@@ -302,4 +302,8 @@ def test_trilinear_binding_arrays_reproduce_the_trilinear_solve(tube, weights):
     X = V + np.einsum("nk,nkd->nd", w, disp[corners])
     d.weights = "trilinear"
     ref = d.solve(V[idx] + [0, 0.3, 0], 0)
+    # pose_lattice poses exactly what solve would, without touching the vertices
+    e = larap.Deformer(V, F, cells=600, weights=weights)
+    e.set_handles(idx)
+    np.testing.assert_array_equal(e.pose_lattice(V[idx] + [0, 0.3, 0], 5), d.lattice_deformed())
     assert np.abs(X - ref).max() < 1e-5 * np.ptp(V, axis=0).max()

@@ -16,15 +16,15 @@ bl_info = {
 
 if "bpy" in locals():
     import importlib
-    for _mod in (engine, props, core, operators, ui, overlay, handlers):  # noqa: F821
+    for _mod in (engine, props, core, operators, farm, ui, overlay, handlers):  # noqa: F821
         importlib.reload(_mod)
 else:
-    from . import engine, props, core, operators, ui, overlay, handlers
+    from . import engine, props, core, operators, farm, ui, overlay, handlers
 
 import bpy
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(
-    props.classes + operators.classes + ui.classes)
+    props.classes + operators.classes + farm.classes + ui.classes)
 
 
 def register():

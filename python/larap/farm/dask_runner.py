@@ -13,24 +13,30 @@ from __future__ import annotations
 from .runner import run_bake
 
 
-def run_dask(job, *, scheduler=None, workers=2, **kwargs):
-    """Bake ``job`` through a Dask scheduler (address) or a new LocalCluster of ``workers``
-    single-threaded worker processes on loopback. Returns runner.BakeReport."""
+def local_cluster(workers=2):
+    """A LocalCluster of ``workers`` single-threaded worker processes on 127.0.0.1 (no dashboard)."""
+    from distributed import LocalCluster
+    return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address=None)
+
+
+def run_dask(job, *, client=None, scheduler=None, workers=2, **kwargs):
+    """Bake ``job`` through a Dask ``client``, a scheduler address, or a new local cluster of
+    ``workers`` processes. Other arguments go to runner.run_bake. Returns runner.BakeReport."""
     try:
-        from distributed import Client, LocalCluster, wait
+        from distributed import Client, wait
     except ImportError:
         raise RuntimeError("the Dask runner needs python3-distributed (apt install python3-distributed)") from None
-    cluster = None
-    if scheduler is None:
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None)
+    if client is not None:
+        def submit(fn, *args, name=""):
+            # pure=False: a re-run is a new task, never a cached result; no Dask-level retries
+            # (run_bake reports and re-runs failures itself).
+            return client.submit(fn, *args, key=name or None, pure=False, retries=0)
+        return run_bake(job, submit, wait, **kwargs)
+    cluster = local_cluster(workers) if scheduler is None else None
     try:
-        with Client(scheduler or cluster) as client:
-            def submit(fn, *args, name=""):
-                # pure=False: a re-run is a new task, never a cached result; no Dask-level retries
-                # (run_bake reports and re-runs failures itself).
-                return client.submit(fn, *args, key=name or None, pure=False, retries=0)
-            return run_bake(job, submit, wait, **kwargs)
+        with Client(scheduler or cluster) as own:
+            return run_dask(job, client=own, **kwargs)
     finally:
         if cluster is not None:
             cluster.close()

@@ -13,6 +13,7 @@ import concurrent.futures
 import dataclasses
 import os
 import time
+import uuid
 
 from .command import chunk_command, run_process
 from .manifest import ChunkError, chunk_dir, manifest_path, verify_chunk
@@ -85,7 +86,7 @@ def run_bake(job, submit, wait, *, blender="blender", addon_path="", installed=F
     def launch(chunk):
         report.attempts[chunk] = report.attempts.get(chunk, 0) + 1
         cmd = chunk_command(job, chunk, blender=blender, addon_path=addon_path, installed=installed)
-        return submit(run_process, cmd, timeout, env, True, name=f"larap-chunk-{chunk}-{report.attempts[chunk]}")
+        return submit(run_process, cmd, timeout, env, True, name=f"larap-chunk-{chunk}-{report.attempts[chunk]}-{uuid.uuid4().hex[:8]}")
 
     running = {launch(c): c for c in todo}
     lost, finished = [], len(report.skipped)

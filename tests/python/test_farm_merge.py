@@ -181,3 +181,53 @@ def test_merge_ignores_temporary_files_of_killed_writers(tmp_path):
 
 def test_frame_ranges():
     assert frame_ranges([9, 1, 2, 3, 7, 10]) == "1-3, 7, 9-10"
+
+
+NODE_COMPILE = r"""
+const vm = require("vm"), fs = require("fs"), path = require("path");
+const author = {
+  Task: (name, type) => ({ name, cmds: [], addCommand(c) { this.cmds.push(c); }, addDependency() {} }),
+  Command: (name, parameters) => parameters,
+};
+const ctx = vm.createContext({ author, path: path.posix, print: () => {} });
+vm.runInContext(fs.readFileSync(process.argv[1], "utf8"), ctx);
+const tasks = [];
+ctx.compileJob({ settings: JSON.parse(process.argv[2]), addTask: (t) => tasks.push(t) });
+console.log(JSON.stringify(tasks.map((t) => ({ name: t.name, args: t.cmds[0].args }))));
+"""
+
+
+def test_flamenco_job_type_matches_the_python_commands():
+    """The Flamenco job type builds the same chunk arguments as larap.farm.command, and its merge
+    task's arguments describe the same bake (same signature) as its chunks."""
+    import json
+    import shutil
+    import subprocess
+    from larap.farm.command import chunk_args
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed (scripts/setup installs nodejs)")
+    script = os.path.join(os.path.dirname(__file__), "..", "..", "flamenco", "larap-bake.js")
+    settings = {"frames": "2-11", "chunk_size": 4, "preroll": 2, "objects": '["Body", "Prop, A"]',
+                "bake_output": "/farm/bake", "device": "cpu", "mode": "warm", "warm_tol": 1e-7, "tol": 1e-10,
+                "max_iterations": 500, "bind": False, "blendfile": "/farm/shot.blend"}
+    out = subprocess.run(["node", "-e", NODE_COMPILE, script, json.dumps(settings)], capture_output=True,
+                         text=True, check=True).stdout
+    tasks = json.loads(out)
+    job = BakeJob("/farm/shot.blend", ["Body", "Prop, A"], 2, 11, "/farm/bake", chunk_size=4, preroll=2,
+                  warm_tol=1e-7, tol=1e-10, max_iterations=500, device="cpu")
+
+    def after_dashes(args):
+        tail = args[args.index("--") + 1:]
+        return [str(float(v)) if i > 0 and tail[i - 1] in ("--tol", "--warm-tol") else v for i, v in enumerate(tail)]
+
+    chunks = [t for t in tasks if t["name"].startswith("larap-chunk-")]
+    assert [t["name"] for t in chunks] == [f"larap-chunk-{c}" for c in job.chunks()]
+    for t, c in zip(chunks, job.chunks()):
+        assert sorted(after_dashes(t["args"])) == sorted(after_dashes(["--"] + chunk_args(job, c)))
+    import argparse
+    from larap.farm import cli
+    merge = after_dashes(tasks[-1]["args"])
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    cli._job_args(sub.add_parser("merge"))
+    assert cli._job(parser.parse_args(merge)).signature() == job.signature()

@@ -9,6 +9,7 @@
 
 ``command`` prints one Blender command line per chunk, for farms that run arbitrary commands
 (Deadline, OpenCue); ``merge`` then joins the chunks. Exit status 0 only when all went well.
+Inside Blender (the Flamenco merge task): ``--python-expr "import larap.farm.cli as c; c.blender_main()" -- merge ...``.
 """
 from __future__ import annotations
 
@@ -121,3 +122,13 @@ def main(argv=None) -> int:
         print(f"larap-farm: error: {exc}", file=sys.stderr)
         return 1
     return 0
+
+
+def blender_main():
+    """The same commands inside Blender (arguments after ``--``); raises on failure, so that
+    ``--python-exit-code 1`` fails the task."""
+    from ._blender import script_argv
+    argv = script_argv()
+    code = main(argv)
+    if code:
+        raise RuntimeError(f"larap-farm {argv[0] if argv else ''} failed (exit status {code}; the reason is above)")

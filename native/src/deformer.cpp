@@ -6,7 +6,7 @@
 #include <unordered_set>
 
 #include "backend.h"
-#include "energy.h"
+#include "rigid_fit.h"
 
 namespace larap {
 namespace {

@@ -1,5 +1,6 @@
-// Device side of the CUDA backend: raw device pointers and the kernel launchers. Internal (only
-// native/src/cuda_backend.cpp and native/cuda/*.cu include it); no public header includes CUDA.
+// The lattice system on the device: raw device pointers and sizes, passed by value to every
+// kernel (flip_flop.h, solvers.h). Internal to native/cuda; no public header includes CUDA.
+// Filled by the backend (cuda_backend.cpp) from its DeviceBuffers.
 //
 // Frame: every position on the device is relative to `origin` (the lattice centre), so that the
 // float arithmetic of A x and the right-hand side does not lose digits to a large offset.
@@ -8,7 +9,6 @@
 #include <cuda_runtime.h>
 
 #include <cstdint>
-#include <string>
 
 namespace larap {
 namespace cuda {
@@ -86,61 +86,6 @@ struct System {
   float4* rc2 = nullptr;          // inner * nc2
   float4* zc2 = nullptr;          // nc2
 };
-
-// Flip-flop stages. `slot`: -1 = add the energy of the current pose with the current rotations
-// into energy[*iter - 1] when *iter > 0 (fused into the rotation step of the next flip-flop);
-// -2 = no energy; >= 0 = into energy[slot]. write_rot = false: energy only.
-void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st);
-// b into r[0] (residual = false) or r0 = b - A x (residual = true); zeroes the solver scalars;
-// (*iter)++.
-void launch_rhs(const System& s, bool residual, cudaStream_t st);
-// Preconditioned CG, Chronopoulos-Gear form, one fused kernel per iteration (k = 0..inner).
-void launch_cg(const System& s, int k, cudaStream_t st);
-// Chebyshev-accelerated (or weighted) Jacobi step k with b in r[0]: reads x from buffer k & 1
-// (x, x_tmp), writes the other; d (in p) = c1 d + c2 D^-1 (b - A x); x += d.
-// Two-level-preconditioned CG (4 kernels per iteration k = 0..inner-1, then a final update).
-void launch_mg_iteration(const System& s, int k, cudaStream_t st);
-void launch_mg_final(const System& s, cudaStream_t st);
-// The same, fused: `iterations` whole flip-flops (rotations with the energy of the previous
-// flip-flop into energy[it - 1], rhs, the two-level PCG) in one cooperative launch of `blocks`
-// blocks (grid-stride loops, grid-wide barriers between the phases). mg_fused_max_blocks(): the
-// most blocks that can be co-resident (0: no cooperative launch on this device).
-int mg_fused_max_blocks();
-cudaError_t launch_mg_fused(const System& s, int iterations, int blocks, cudaStream_t st);
-void launch_cheby(const System& s, int k, float c1, float c2, cudaStream_t st);
-
-void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st);
-void launch_handle_positions(const System& s, float4* out, cudaStream_t st);
-void launch_displacement(const System& s, float4* disp, cudaStream_t st);
-
-// Transfer: out[3 v + c] = V[3 v + c] + sum_k w_k disp[id_k], v in [v0, v1). packed[v] =
-// (base cell / node id as int bits, 3 fractions): one 16-byte load per vertex. Variants
-// (LARAP_CUDA_TRANSFER): mode kTransferScalar: one vertex per thread, 3 scalar loads/stores;
-// kTransferStaged: V and out through shared memory with 16-byte accesses; kTransferIlp: vpt
-// vertices per thread (trilinear only; B-spline uses the scalar kernel), all their loads issued
-// before the first use (packed + V, then the cell corners, then the 8 displacements), and with
-// stream = true read-once data (packed, V) read and out written with streaming cache hints.
-enum TransferMode { kTransferScalar = 0, kTransferStaged = 1, kTransferIlp = 2 };
-struct TransferVariant {
-  int mode = kTransferIlp;
-  int vpt = 2;
-  bool stream = false;
-};
-void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
-                               const int* cell_nodes, const float4* disp, const float* V,
-                               float* out, const TransferVariant& tv, cudaStream_t st);
-void launch_transfer_trilinear(int64_t v0, int64_t v1, const float4* packed,
-                               const int* cell_nodes, const float4* disp, const double* V,
-                               double* out, const TransferVariant& tv, cudaStream_t st);
-void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
-                             const int* node27, const float4* disp, const float* V, float* out,
-                             const TransferVariant& tv, cudaStream_t st);
-void launch_transfer_bspline(int64_t v0, int64_t v1, const float4* packed,
-                             const int* node27, const float4* disp, const double* V, double* out,
-                             const TransferVariant& tv, cudaStream_t st);
-
-// Can this build's kernels run on the current device? (no image for its architecture, ...)
-cudaError_t probe_kernels();
 
 }  // namespace cuda
 }  // namespace larap

@@ -44,10 +44,12 @@ void parallel_copy(void* dst, const void* src, size_t bytes) {
     return;
   }
   const int64_t pieces = int64_t((bytes + piece - 1) / piece);
-  parallel_for(pieces, [&](int64_t k) {
+  const auto copy_piece = [&](int64_t k) {
     const size_t off = size_t(k) * piece;
-    std::memcpy(static_cast<char*>(dst) + off, static_cast<const char*>(src) + off, std::min(piece, bytes - off));
-  }, 1);
+    std::memcpy(static_cast<char*>(dst) + off, static_cast<const char*>(src) + off,
+                std::min(piece, bytes - off));
+  };
+  parallel_for(pieces, copy_piece, 1);
 }
 
 // ------------------------------------------------------------------ the backend
@@ -90,8 +92,10 @@ class CudaBackend final : public Backend {
     configure();
     LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.p, 0, sizeof(float4) * n_, stream_));
     std::vector<float> eye(static_cast<size_t>(9 * n_), 0.f);
-    for (int i = 0; i < n_; ++i) eye[0 * size_t(n_) + i] = eye[4 * size_t(n_) + i] = eye[8 * size_t(n_) + i] = 1.f;
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float), cudaMemcpyHostToDevice, stream_));
+    for (int i = 0; i < n_; ++i)
+      eye[0 * size_t(n_) + i] = eye[4 * size_t(n_) + i] = eye[8 * size_t(n_) + i] = 1.f;
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float), cudaMemcpyHostToDevice, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
   }
 
@@ -246,13 +250,15 @@ class CudaBackend final : public Backend {
   void set_pose(const RowMatrixX3d& nodes) override {
     std::vector<float4> h(static_cast<size_t>(n_));
     for (int i = 0; i < n_; ++i) h[i] = to_f4(nodes.row(i).transpose());
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(sys_.x, h.data(), h.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(sys_.x, h.data(), h.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
   }
 
   void get_pose(RowMatrixX3d& nodes) const override {
     std::vector<float4> h(static_cast<size_t>(n_));
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(h.data(), sys_.x, h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(h.data(), sys_.x, h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
     nodes.resize(n_, 3);
     for (int i = 0; i < n_; ++i) nodes.row(i) = from_f4(h[i]).transpose();
@@ -268,7 +274,8 @@ class CudaBackend final : public Backend {
     std::vector<float4> h(static_cast<size_t>(m));
     cuda::launch_handle_positions(sys_, hpos_.get(), stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(h.data(), hpos_.get(), h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(h.data(), hpos_.get(), h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
     for (int j = 0; j < m; ++j) out.row(j) = from_f4(h[j]).transpose();
   }
@@ -307,7 +314,8 @@ class CudaBackend final : public Backend {
         cuda::launch_rotations(sys_, true, -1, stream_);
         LARAP_CUDA_CHECK(cudaGetLastError());
         LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
-        cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid, stream_);
+        cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid,
+                         stream_);
         LARAP_CUDA_CHECK(cudaGetLastError());
         LARAP_CUDA_CHECK(cudaEventRecord(ev_[2].get(), stream_));
         launch_solver();
@@ -342,7 +350,7 @@ class CudaBackend final : public Backend {
     LARAP_CUDA_CHECK(cudaGetLastError());
     LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
     LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * iterations,
-                             cudaMemcpyDeviceToHost, stream_));
+                                     cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
     const double loop_ms = cuda::elapsed_ms(ev_[0], ev_[1]);
     for (int it = 0; it < iterations; ++it) stats.energy.push_back(h_energy_.get()[it] * hs_.energy_scale);
@@ -350,8 +358,9 @@ class CudaBackend final : public Backend {
       stats.ms_rotations += ms_rot + loop_ms;  // + the final energy pass
       stats.ms_rhs += ms_rhs;
       stats.ms_solve += ms_sol;
-      write_profile("iterate", iterations, {{"ms_rotations", ms_rot}, {"ms_rhs", ms_rhs},
-                                            {"ms_solve", ms_sol}, {"ms_final_energy", loop_ms}});
+      write_profile(
+          "iterate", iterations,
+          {{"ms_rotations", ms_rot}, {"ms_rhs", ms_rhs}, {"ms_solve", ms_sol}, {"ms_final_energy", loop_ms}});
     } else {
       // One graph per flip-flop: the stages are not timed apart; the loop's device time is
       // reported as solve time (docs/cuda.md).
@@ -411,9 +420,7 @@ class CudaBackend final : public Backend {
     const Eigen::Vector3d c = p - origin_;
     return make_float4(float(c.x()), float(c.y()), float(c.z()), 0.f);
   }
-  Eigen::Vector3d from_f4(const float4& p) const {
-    return Eigen::Vector3d(p.x, p.y, p.z) + origin_;
-  }
+  Eigen::Vector3d from_f4(const float4& p) const { return Eigen::Vector3d(p.x, p.y, p.z) + origin_; }
 
   // The graph holds the buffer's address: a new buffer needs a new graph.
   void set_energy_buffer(size_t n) {
@@ -430,7 +437,7 @@ class CudaBackend final : public Backend {
     for (int j = 0; j < m; ++j) h[j] = to_f4(targets.row(j).transpose());
     if (m)
       LARAP_CUDA_CHECK(cudaMemcpyAsync(const_cast<float4*>(sys_.targets), h, sizeof(float4) * m,
-                               cudaMemcpyHostToDevice, stream_));
+                                       cudaMemcpyHostToDevice, stream_));
   }
 
   void launch_solver() {
@@ -462,7 +469,8 @@ class CudaBackend final : public Backend {
   void flip_flop() {
     cuda::launch_rotations(sys_, true, -1, stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
-    cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid, stream_);
+    cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid,
+                     stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
     launch_solver();
   }
@@ -511,7 +519,8 @@ class CudaBackend final : public Backend {
     }
     if (b.kind == WeightKind::Trilinear) {
       static_assert(sizeof(lat_.cell_nodes[0]) == 8 * sizeof(int32_t), "cell_nodes layout");
-      d.table.upload(reinterpret_cast<const int*>(lat_.cell_nodes.data()), lat_.cell_nodes.size() * 8, stream_);
+      d.table.upload(reinterpret_cast<const int*>(lat_.cell_nodes.data()), lat_.cell_nodes.size() * 8,
+                     stream_);
     } else {
       d.table.upload(b.node27.data(), b.node27.size(), stream_);
     }
@@ -547,8 +556,8 @@ class CudaBackend final : public Backend {
     const bool trilinear = b.kind == WeightKind::Trilinear;
 #ifdef LARAP_CUDA_EXPERIMENTS
     if (opt_.transfer.mode != cuda::TransferKernel::Scalar) {
-      cuda::launch_experimental_transfer(opt_.transfer, trilinear, v0, v1, d.packed.get(), d.table.get(), disp_.get(),
-                                         V, out, stream_);
+      cuda::launch_experimental_transfer(opt_.transfer, trilinear, v0, v1, d.packed.get(), d.table.get(),
+                                         disp_.get(), V, out, stream_);
       return;
     }
 #endif
@@ -595,7 +604,7 @@ class CudaBackend final : public Backend {
       const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
       launch_transfer(b, d, v0, v1, V, dout);
       LARAP_CUDA_CHECK(cudaMemcpyAsync(stage + 3 * v0, dout + 3 * v0, sizeof(T) * 3 * (v1 - v0),
-                               cudaMemcpyDeviceToHost, stream_));
+                                       cudaMemcpyDeviceToHost, stream_));
       LARAP_CUDA_CHECK(cudaEventRecord(chunk_ev_[c]->get(), stream_));
     }
     for (int64_t c = 0; c < nchunks; ++c) {
@@ -606,14 +615,15 @@ class CudaBackend final : public Backend {
     const double ms = ms_since(t0);
     stats.ms_transfer += ms;
     if (!opt_.profile_path.empty())
-      write_profile("transfer", 0, {{"kernel_ms", kernel_ms},
-                                    {"kernel_rep_ms", kernel_rep_ms},
-                                    {"pipeline_ms", ms_since(t1)},
-                                    {"total_ms", ms},
-                                    {"vertices", double(nv)},
-                                    {"bytes_out", double(sizeof(T) * 3 * nv)},
-                                    {"stencil", double(b.stencil_size())},
-                                    {"elem_size", double(sizeof(T))}});
+      write_profile("transfer", 0,
+                    {{"kernel_ms", kernel_ms},
+                     {"kernel_rep_ms", kernel_rep_ms},
+                     {"pipeline_ms", ms_since(t1)},
+                     {"total_ms", ms},
+                     {"vertices", double(nv)},
+                     {"bytes_out", double(sizeof(T) * 3 * nv)},
+                     {"stencil", double(b.stencil_size())},
+                     {"elem_size", double(sizeof(T))}});
   }
 
   void write_profile(const char* what, int iterations,
@@ -694,8 +704,8 @@ bool cuda_available(std::string* why) {
     e = cuda::probe_kernels();
     if (e != cudaSuccess) {
       cudaGetLastError();
-      reason = std::string("this build's kernels cannot run on the GPU present (") +
-               cudaGetErrorString(e) + "); rebuild with CMAKE_CUDA_ARCHITECTURES for it";
+      reason = std::string("this build's kernels cannot run on the GPU present (") + cudaGetErrorString(e) +
+               "); rebuild with CMAKE_CUDA_ARCHITECTURES for it";
       return;
     }
     ok = true;

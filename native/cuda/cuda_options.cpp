@@ -29,10 +29,14 @@ void require_experiments(const char* name, const std::string& value) {
 Solver parse_solver(const std::string& s) {
   if (s == "mg") return Solver::Multigrid;
   Solver v;
-  if (s == "pcg") v = Solver::Pcg;
-  else if (s == "cheby") v = Solver::Chebyshev;
-  else if (s == "jacobi") v = Solver::Jacobi;
-  else throw InvalidInput("LARAP_CUDA_SOLVER must be pcg, mg, cheby or jacobi, got '" + s + "'");
+  if (s == "pcg")
+    v = Solver::Pcg;
+  else if (s == "cheby")
+    v = Solver::Chebyshev;
+  else if (s == "jacobi")
+    v = Solver::Jacobi;
+  else
+    throw InvalidInput("LARAP_CUDA_SOLVER must be pcg, mg, cheby or jacobi, got '" + s + "'");
   require_experiments("LARAP_CUDA_SOLVER", s);
   return v;
 }

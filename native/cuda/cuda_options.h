@@ -29,7 +29,7 @@ enum class Solver {
 // Kernel of the vertex transfer.
 struct TransferKernel {
   enum Mode { Scalar = 0, Staged = 1, Ilp = 2 };
-  Mode mode = Scalar;  // scalar: one vertex per thread (the product); staged, ilp: experiments
+  Mode mode = Scalar;           // scalar: one vertex per thread (the product); staged, ilp: experiments
   int vertices_per_thread = 1;  // ilp: 1, 2 or 4
   bool streaming = false;       // ilp: streaming cache hints on read-once data
 };
@@ -49,7 +49,7 @@ struct CudaOptions {
   // A file to which per-stage device times are appended as JSON lines (plain launches, a sync
   // per flip-flop); empty = off.                                      LARAP_CUDA_PROFILE
   std::string profile_path;
-  TransferKernel transfer;  // LARAP_CUDA_TRANSFER = scalar | staged | ilp1 | ilp2 | ilp4 | ilp2s | ilp4s
+  TransferKernel transfer;    // LARAP_CUDA_TRANSFER = scalar | staged | ilp1 | ilp2 | ilp4 | ilp2s | ilp4s
   double cheby_ratio = 50.0;  // cheby: lambda_max / lambda_min assumed   LARAP_CUDA_CHEBY_RATIO
 };
 

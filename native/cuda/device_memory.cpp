@@ -16,8 +16,8 @@ std::atomic<size_t> g_device_bytes{0};
 
 void fail(cudaError_t e, const char* what) {
   cudaGetLastError();  // clear a non-sticky error so that the process can go on
-  const std::string msg = std::string("CUDA error in ") + what + ": " + cudaGetErrorName(e) + " (" +
-                          cudaGetErrorString(e) + ")";
+  const std::string msg =
+      std::string("CUDA error in ") + what + ": " + cudaGetErrorName(e) + " (" + cudaGetErrorString(e) + ")";
   if (e == cudaErrorMemoryAllocation) throw OutOfMemory("device out of memory: " + msg);
   throw DeviceError(msg);
 }

@@ -23,9 +23,9 @@ namespace cuda {
 // Throws the larap exception for e (after clearing a non-sticky error); `what`: the call.
 [[noreturn]] void fail(cudaError_t e, const char* what);
 
-#define LARAP_CUDA_CHECK(call)                                     \
-  do {                                                             \
-    const cudaError_t larap_err_ = (call);                         \
+#define LARAP_CUDA_CHECK(call)                                             \
+  do {                                                                     \
+    const cudaError_t larap_err_ = (call);                                 \
     if (larap_err_ != cudaSuccess) ::larap::cuda::fail(larap_err_, #call); \
   } while (0)
 

@@ -14,8 +14,12 @@ constexpr int kBlock = 256;
 constexpr unsigned kFull = 0xffffffffu;
 
 __device__ __forceinline__ float4 f4(float x, float y, float z) { return make_float4(x, y, z, 0.f); }
-__device__ __forceinline__ float4 operator+(float4 a, float4 b) { return f4(a.x + b.x, a.y + b.y, a.z + b.z); }
-__device__ __forceinline__ float4 operator-(float4 a, float4 b) { return f4(a.x - b.x, a.y - b.y, a.z - b.z); }
+__device__ __forceinline__ float4 operator+(float4 a, float4 b) {
+  return f4(a.x + b.x, a.y + b.y, a.z + b.z);
+}
+__device__ __forceinline__ float4 operator-(float4 a, float4 b) {
+  return f4(a.x - b.x, a.y - b.y, a.z - b.z);
+}
 __device__ __forceinline__ float4 operator*(float s, float4 a) { return f4(s * a.x, s * a.y, s * a.z); }
 // Per-column products (3 independent systems).
 __device__ __forceinline__ float4 cmul(float4 a, float4 b) { return f4(a.x * b.x, a.y * b.y, a.z * b.z); }

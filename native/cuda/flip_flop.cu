@@ -1,8 +1,7 @@
 // Kernels of the flip-flop's rotation and right-hand-side stages, and the small per-node
 // kernels (see flip_flop.h; per-node maths in flip_flop.cuh and node_terms.h).
-#include "flip_flop.h"
-
 #include "flip_flop.cuh"
+#include "flip_flop.h"
 
 namespace larap {
 namespace cuda {
@@ -30,10 +29,12 @@ __global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
   }
   if (s.nc > 0) {  // two-level CG: zero the restriction slots of this flip-flop
     const int64_t tot = int64_t(s.inner) * s.nc;
-    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot; k += int64_t(gridDim.x) * blockDim.x)
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot;
+         k += int64_t(gridDim.x) * blockDim.x)
       s.rc[k] = f4(0, 0, 0);
     const int64_t tot2 = int64_t(s.inner) * s.nc2;
-    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot2; k += int64_t(gridDim.x) * blockDim.x)
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot2;
+         k += int64_t(gridDim.x) * blockDim.x)
       s.rc2[k] = f4(0, 0, 0);
   }
   if (i >= s.n) return;
@@ -54,9 +55,9 @@ __global__ void rigid_kernel(System s, Mat3f R, float4 t) {
   const int i = blockIdx.x * blockDim.x + threadIdx.x;
   if (i >= s.n || s.anchored[i]) return;
   const float4 p = s.x[i];
-  s.x[i] = f4(R.m[0] * p.x + R.m[1] * p.y + R.m[2] * p.z + t.x,
-              R.m[3] * p.x + R.m[4] * p.y + R.m[5] * p.z + t.y,
-              R.m[6] * p.x + R.m[7] * p.y + R.m[8] * p.z + t.z);
+  s.x[i] =
+      f4(R.m[0] * p.x + R.m[1] * p.y + R.m[2] * p.z + t.x, R.m[3] * p.x + R.m[4] * p.y + R.m[5] * p.z + t.y,
+         R.m[6] * p.x + R.m[7] * p.y + R.m[8] * p.z + t.z);
 }
 
 __global__ void handle_positions_kernel(System s, float4* out) {

@@ -45,14 +45,15 @@ std::vector<float> dense_inverse(const Eigen::MatrixXd& A) {
   Eigen::MatrixXd inv(nc, nc);
   constexpr int kCols = 64;
   const int nb = (nc + kCols - 1) / kCols;
-  parallel_for(nb, [&](int64_t b) {
+  const auto solve_block = [&](int64_t b) {  // columns [64 b, 64 b + 64) of the inverse
     const int c0 = int(b) * kCols, w = std::min(kCols, nc - c0);
     Eigen::MatrixXd X = Eigen::MatrixXd::Zero(nc, w);
     for (int k = 0; k < w; ++k) X(c0 + k, k) = 1.0;
     llt.matrixL().solveInPlace(X);
     llt.matrixU().solveInPlace(X);
     inv.middleCols(c0, w) = X;
-  }, 1);
+  };
+  parallel_for(nb, solve_block, 1);
   std::vector<float> out(size_t(nc) * nc);
   for (int r = 0; r < nc; ++r)
     for (int c = 0; c < nc; ++c) out[size_t(r) * nc + c] = float(0.5 * (inv(r, c) + inv(c, r)));

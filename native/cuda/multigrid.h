@@ -34,17 +34,17 @@ std::vector<float> dense_inverse(const Eigen::MatrixXd& A);
 
 struct Multigrid {
   bool three_levels = false;
-  int shift = 1;           // level 1 = fine nodes grouped by coords >> shift
-  int nc = 0;              // level-1 nodes
-  std::vector<int> agg;    // #N: level-1 id of each fine node
-  float omega = 0.6f;      // fine smoothing weight
-  std::vector<float> ainv; // dense inverse of the coarsest level (nc or nc2 squared), row-major
+  int shift = 1;            // level 1 = fine nodes grouped by coords >> shift
+  int nc = 0;               // level-1 nodes
+  std::vector<int> agg;     // #N: level-1 id of each fine node
+  float omega = 0.6f;       // fine smoothing weight
+  std::vector<float> ainv;  // dense inverse of the coarsest level (nc or nc2 squared), row-major
   // Three levels only:
-  int nc2 = 0;                      // level-2 nodes
-  std::vector<int> agg2;            // nc: level-2 id of each level-1 node
-  std::vector<int> c_off, c_col;    // Ac1, CSR with its diagonal
-  std::vector<float> c_val, c_minv; // its values, 1 / diag(Ac1)
-  float omega1 = 0.6f;              // level-1 smoothing weight
+  int nc2 = 0;                       // level-2 nodes
+  std::vector<int> agg2;             // nc: level-2 id of each level-1 node
+  std::vector<int> c_off, c_col;     // Ac1, CSR with its diagonal
+  std::vector<float> c_val, c_minv;  // its values, 1 / diag(Ac1)
+  float omega1 = 0.6f;               // level-1 smoothing weight
 };
 
 // The preconditioner of A (the fine system, #N rows) with lam_max = jacobi_lambda_max(A, ...).

@@ -25,7 +25,7 @@ LARAP_HD void jacobi_rotate(float (&a)[4][4], float (&v)[4][4]) {
   const float t = (theta >= 0.0f ? 1.0f : -1.0f) / (fabsf(theta) + sqrtf(theta * theta + 1.0f));
   const float c = 1.0f / sqrtf(t * t + 1.0f);
   const float s = t * c;
-LARAP_UNROLL
+  LARAP_UNROLL
   for (int k = 0; k < 4; ++k) {
     if (k == P || k == Q) continue;
     const float akp = a[k][P], akq = a[k][Q];
@@ -36,7 +36,7 @@ LARAP_UNROLL
   a[P][P] -= t * apq;
   a[Q][Q] += t * apq;
   a[P][Q] = a[Q][P] = 0.0f;
-LARAP_UNROLL
+  LARAP_UNROLL
   for (int k = 0; k < 4; ++k) {
     const float vkp = v[k][P], vkq = v[k][Q];
     v[k][P] = c * vkp - s * vkq;
@@ -47,7 +47,7 @@ LARAP_UNROLL
 // S row-major (S[3*a+b] = sum q_a p_b). Writes R row-major.
 LARAP_HD void best_rotation_f(const float (&S)[9], float (&R)[9]) {
   float mx = 0.0f;
-LARAP_UNROLL
+  LARAP_UNROLL
   for (int k = 0; k < 9; ++k) mx = fmaxf(mx, fabsf(S[k]));
   const float inv = mx > 0.0f ? 1.0f / mx : 0.0f;
   // M = S^T (Horn's M_ab = sum p_a q_b), scaled.
@@ -61,8 +61,8 @@ LARAP_UNROLL
   float v[4][4] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}};
   LARAP_NO_UNROLL
   for (int sweep = 0; sweep < 6; ++sweep) {
-    const float off = fabsf(a[0][1]) + fabsf(a[0][2]) + fabsf(a[0][3]) + fabsf(a[1][2]) +
-                      fabsf(a[1][3]) + fabsf(a[2][3]);
+    const float off =
+        fabsf(a[0][1]) + fabsf(a[0][2]) + fabsf(a[0][3]) + fabsf(a[1][2]) + fabsf(a[1][3]) + fabsf(a[2][3]);
     if (off <= 1e-9f) break;
     jacobi_rotate<0, 1>(a, v);
     jacobi_rotate<0, 2>(a, v);
@@ -74,7 +74,7 @@ LARAP_UNROLL
   // Column of the largest eigenvalue (ties: the lowest index, the identity for S = 0).
   float best = a[0][0];
   float w = v[0][0], x = v[1][0], y = v[2][0], z = v[3][0];
-LARAP_UNROLL
+  LARAP_UNROLL
   for (int k = 1; k < 4; ++k) {
     if (a[k][k] > best) {
       best = a[k][k];

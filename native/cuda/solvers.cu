@@ -80,7 +80,9 @@ __device__ __forceinline__ void coarse_row(const System& s, int row, int lane, i
   for (int j = lane; j < nd; j += 32) {
     const float w = a[j];
     const float4 v = rc[j];
-    ax += w * v.x; ay += w * v.y; az += w * v.z;
+    ax += w * v.x;
+    ay += w * v.y;
+    az += w * v.z;
   }
   for (int o = 16; o > 0; o >>= 1) {
     ax += __shfl_down_sync(kFull, ax, o);
@@ -128,7 +130,8 @@ __device__ __forceinline__ void mg_b1_node(const System& s, int c, int k) {
   const float om = s.omega1;
   const int* a2 = s.agg2;
   const float4* zc2 = s.zc2;
-  const float4 az = coarse_spmv(s, c, [&](int j) { return (om * __ldg(mi + j)) * rc[j] + zc2[__ldg(a2 + j)]; });
+  const float4 az =
+      coarse_spmv(s, c, [&](int j) { return (om * __ldg(mi + j)) * rc[j] + zc2[__ldg(a2 + j)]; });
   const float4 rcc = rc[c];
   const float omc = om * mi[c];
   const float4 z2 = omc * rcc + zc2[a2[c]];
@@ -156,7 +159,9 @@ __device__ __forceinline__ void mg_c_node(const System& s, int i, int k, double 
   const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
   const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
   s.z[i] = zi;
-  v[0] += ri.x * zi.x; v[1] += ri.y * zi.y; v[2] += ri.z * zi.z;
+  v[0] += ri.x * zi.x;
+  v[1] += ri.y * zi.y;
+  v[2] += ri.z * zi.z;
 }
 
 __global__ void __launch_bounds__(kBlock) mg_c_kernel(System s, int k) {
@@ -175,7 +180,9 @@ __device__ __forceinline__ void mg_d_node(const System& s, int i, int k, float4 
                           : spmv_row(s, i, [&](int j) { return z[j]; });
   s.pb[k & 1][i] = pi;
   s.q[i] = aq;
-  v[0] += pi.x * aq.x; v[1] += pi.y * aq.y; v[2] += pi.z * aq.z;
+  v[0] += pi.x * aq.x;
+  v[1] += pi.y * aq.y;
+  v[2] += pi.z * aq.z;
 }
 
 __global__ void __launch_bounds__(kBlock) mg_d_kernel(System s, int k) {
@@ -278,15 +285,16 @@ int mg_fused_max_blocks() {
   if (cudaGetDevice(&dev) != cudaSuccess) return 0;
   if (cudaDeviceGetAttribute(&coop, cudaDevAttrCooperativeLaunch, dev) != cudaSuccess || !coop) return 0;
   if (cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, dev) != cudaSuccess) return 0;
-  if (cudaOccupancyMaxActiveBlocksPerMultiprocessor(&per_sm, mg_fused_kernel, kBlock, 0) != cudaSuccess) return 0;
+  if (cudaOccupancyMaxActiveBlocksPerMultiprocessor(&per_sm, mg_fused_kernel, kBlock, 0) != cudaSuccess)
+    return 0;
   return sms * per_sm;
 }
 
 cudaError_t launch_mg_fused(const System& s, int iterations, int blocks, cudaStream_t st) {
   System sc = s;
   void* args[] = {&sc, &iterations};
-  return cudaLaunchCooperativeKernel(reinterpret_cast<void*>(mg_fused_kernel), dim3(blocks), dim3(kBlock), args,
-                                     0, st);
+  return cudaLaunchCooperativeKernel(reinterpret_cast<void*>(mg_fused_kernel), dim3(blocks), dim3(kBlock),
+                                     args, 0, st);
 }
 
 void launch_mg_final(const System& s, cudaStream_t st) {

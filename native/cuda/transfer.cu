@@ -1,7 +1,6 @@
 // Kernels of the vertex transfer (see transfer.h).
-#include "transfer.h"
-
 #include "transfer.cuh"
+#include "transfer.h"
 
 namespace larap {
 namespace cuda {
@@ -9,8 +8,9 @@ namespace {
 
 template <typename T>
 __global__ void __launch_bounds__(kBlock)
-    trilinear_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed, const int4* __restrict__ cell_nodes,
-                     const float4* __restrict__ disp, const T* __restrict__ V, T* __restrict__ out) {
+    trilinear_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
+                     const int4* __restrict__ cell_nodes, const float4* __restrict__ disp,
+                     const T* __restrict__ V, T* __restrict__ out) {
   const int64_t v = v0 + int64_t(blockIdx.x) * kBlock + threadIdx.x;
   if (v >= v1) return;
   const float4 d = trilinear_displacement(__ldg(packed + v), cell_nodes, disp);
@@ -32,17 +32,18 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 template <typename T>
-void trilinear(int64_t v0, int64_t v1, const float4* packed, const int* cell_nodes, const float4* disp, const T* V,
-               T* out, cudaStream_t st) {
+void trilinear(int64_t v0, int64_t v1, const float4* packed, const int* cell_nodes, const float4* disp,
+               const T* V, T* out, cudaStream_t st) {
   if (v1 > v0)
-    trilinear_kernel<T><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed,
-                                                                reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
+    trilinear_kernel<T><<<blocks_for(v1 - v0), kBlock, 0, st>>>(
+        v0, v1, packed, reinterpret_cast<const int4*>(cell_nodes), disp, V, out);
 }
 
 template <typename T>
-void bspline(int64_t v0, int64_t v1, const float4* packed, const int* node27, const float4* disp, const T* V, T* out,
-             cudaStream_t st) {
-  if (v1 > v0) bspline_kernel<T><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
+void bspline(int64_t v0, int64_t v1, const float4* packed, const int* node27, const float4* disp, const T* V,
+             T* out, cudaStream_t st) {
+  if (v1 > v0)
+    bspline_kernel<T><<<blocks_for(v1 - v0), kBlock, 0, st>>>(v0, v1, packed, node27, disp, V, out);
 }
 
 }  // namespace

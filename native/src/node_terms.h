@@ -66,7 +66,8 @@ LARAP_HD void node_rhs(const Edges& edges, Real g, const Real* Ri, Real (&b)[3])
     edges.rest_edge(k, dc, Rj);
     LARAP_UNROLL
     for (int a = 0; a < 3; ++a) {
-      const Real m0 = Ri[3 * a] + Rj[3 * a], m1 = Ri[3 * a + 1] + Rj[3 * a + 1], m2 = Ri[3 * a + 2] + Rj[3 * a + 2];
+      const Real m0 = Ri[3 * a] + Rj[3 * a], m1 = Ri[3 * a + 1] + Rj[3 * a + 1],
+                 m2 = Ri[3 * a + 2] + Rj[3 * a + 2];
       acc[a] += m0 * dc[0] + m1 * dc[1] + m2 * dc[2];
     }
   }

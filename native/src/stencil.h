@@ -18,7 +18,7 @@ namespace larap {
 template <typename Real>
 LARAP_HD void trilinear_weights(Real fx, Real fy, Real fz, Real (&w)[8]) {
   const Real wx[2] = {Real(1) - fx, fx}, wy[2] = {Real(1) - fy, fy}, wz[2] = {Real(1) - fz, fz};
-LARAP_UNROLL
+  LARAP_UNROLL
   for (int c = 0; c < 8; ++c) w[c] = wx[c & 1] * wy[(c >> 1) & 1] * wz[c >> 2];
 }
 
@@ -38,14 +38,13 @@ LARAP_HD void bspline_weights(Real tx, Real ty, Real tz, Real (&w)[27]) {
   bspline_weights(tx, wx);
   bspline_weights(ty, wy);
   bspline_weights(tz, wz);
-LARAP_UNROLL
-  for (int z = 0; z < 3; ++z)
-LARAP_UNROLL
-    for (int y = 0; y < 3; ++y) {
-      const Real wyz = wy[y] * wz[z];
-LARAP_UNROLL
-      for (int x = 0; x < 3; ++x) w[9 * z + 3 * y + x] = wx[x] * wyz;
-    }
+  LARAP_UNROLL
+  for (int z = 0; z < 3; ++z) LARAP_UNROLL
+  for (int y = 0; y < 3; ++y) {
+    const Real wyz = wy[y] * wz[z];
+    LARAP_UNROLL
+    for (int x = 0; x < 3; ++x) w[9 * z + 3 * y + x] = wx[x] * wyz;
+  }
 }
 
 }  // namespace larap

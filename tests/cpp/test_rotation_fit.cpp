@@ -75,7 +75,7 @@ TEST(RotationFit, RecoversTheRotationOfAStretchedCovariance) {
   for (int trial = 0; trial < 200; ++trial) {
     const Mat3 R = random_rotation(rng), Q = random_rotation(rng);
     const Mat3 A = Q * Eigen::Vector3d(0.5, 1.0, 3.0).asDiagonal() * Q.transpose();
-    const Mat3 S = covariance_of(R * A, rng) ;
+    const Mat3 S = covariance_of(R * A, rng);
     const Mat3 want = larap::best_rotation(S);
     EXPECT_LT((larap::best_rotation_fast(S) - want).cwiseAbs().maxCoeff(), 1e-9);
     EXPECT_LT((horn(S) - want).cwiseAbs().maxCoeff(), 1e-4);

@@ -1,7 +1,6 @@
 // Kernels of the rejected variants (see experiments.h). Built only with LARAP_CUDA_EXPERIMENTS.
-#include "experiments.h"
-
 #include "device_memory.h"
+#include "experiments.h"
 #include "transfer.cuh"
 #include "transfer.h"
 
@@ -59,8 +58,12 @@ __global__ void __launch_bounds__(kBlock) cg_kernel(System s, int k) {
     s.r[out][i] = rn;
     s.s[out][i] = sn;
     s.w[out][i] = wn;
-    v[0] = rn.x * un.x; v[1] = rn.y * un.y; v[2] = rn.z * un.z;
-    v[3] = wn.x * un.x; v[4] = wn.y * un.y; v[5] = wn.z * un.z;
+    v[0] = rn.x * un.x;
+    v[1] = rn.y * un.y;
+    v[2] = rn.z * un.z;
+    v[3] = wn.x * un.x;
+    v[4] = wn.y * un.y;
+    v[5] = wn.z * un.z;
   }
   block_add<6>(v, s.dots + 6 * k);
   // Last block: coefficients for the next kernel.
@@ -86,8 +89,10 @@ __global__ void __launch_bounds__(kBlock) cg_kernel(System s, int k) {
       if (aprev != 0.0 && gprev > 0.0 && gam > 1e-12 * g0 && gam > 0.0) {
         beta = gam / gprev;
         const double den = del - beta * gam / aprev;
-        if (den > 0.0 && isfinite(den)) alpha = gam / den;
-        else beta = 0.0;
+        if (den > 0.0 && isfinite(den))
+          alpha = gam / den;
+        else
+          beta = 0.0;
       }
     }
     if (!(alpha > 0.0) || !isfinite(alpha)) alpha = beta = 0.0;
@@ -97,8 +102,6 @@ __global__ void __launch_bounds__(kBlock) cg_kernel(System s, int k) {
   cn[6] = k == 0 ? 1.f : 0.f;
   s.counters[k] = 0u;
 }
-
-
 
 // ---------------------------------------------------------------- Chebyshev / Jacobi
 __global__ void __launch_bounds__(kBlock) cheby_kernel(System s, int k, float c1, float c2) {
@@ -114,13 +117,14 @@ __global__ void __launch_bounds__(kBlock) cheby_kernel(System s, int k, float c1
   xout[i] = xin[i] + d;
 }
 
-
 // ---------------------------------------------------------------- staged transfer
 // One block = kBlock consecutive vertices. V is read and out written through shared memory with
 // 16-byte accesses (3 kBlock values of T per block, contiguous); a partial or unaligned block
 // falls back to scalar accesses. Each thread computes sum_k w_k disp[id_k] for its vertex.
 template <typename T>
-__device__ __forceinline__ bool aligned16(const T* p) { return (reinterpret_cast<uintptr_t>(p) & 15) == 0; }
+__device__ __forceinline__ bool aligned16(const T* p) {
+  return (reinterpret_cast<uintptr_t>(p) & 15) == 0;
+}
 
 template <typename T>
 __device__ __forceinline__ void stage_in(T* sh, const T* __restrict__ src, int cnt, bool vec) {
@@ -146,10 +150,9 @@ __device__ __forceinline__ void stage_out(const T* sh, T* __restrict__ dst, int 
 }
 
 template <typename T, bool Trilinear>
-__global__ void __launch_bounds__(kBlock) staged_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
-                                                        const int* __restrict__ table,
-                                                        const float4* __restrict__ disp, const T* __restrict__ V,
-                                                        T* __restrict__ out) {
+__global__ void __launch_bounds__(kBlock)
+    staged_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed, const int* __restrict__ table,
+                  const float4* __restrict__ disp, const T* __restrict__ V, T* __restrict__ out) {
   __shared__ __align__(16) T sh[3 * kBlock];
   const int64_t b0 = v0 + int64_t(blockIdx.x) * kBlock;
   const int cnt = int(v1 - b0 < kBlock ? v1 - b0 : kBlock);
@@ -179,21 +182,24 @@ __global__ void __launch_bounds__(kBlock) staged_kernel(int64_t v0, int64_t v1, 
 // __stcs (evict-first), so that the gathered tables (cell corners, displacements) keep L2.
 template <bool Stream, typename T>
 __device__ __forceinline__ T ld_once(const T* p) {
-  if constexpr (Stream) return __ldcs(p);
-  else return __ldg(p);
+  if constexpr (Stream)
+    return __ldcs(p);
+  else
+    return __ldg(p);
 }
 template <bool Stream, typename T>
 __device__ __forceinline__ void st_once(T* p, T v) {
-  if constexpr (Stream) __stcs(p, v);
-  else *p = v;
+  if constexpr (Stream)
+    __stcs(p, v);
+  else
+    *p = v;
 }
 
 template <typename T, int VPT, bool Stream>
-__global__ void __launch_bounds__(kBlock) trilinear_ilp_kernel(int64_t v0, int64_t v1,
-                                                               const float4* __restrict__ packed,
-                                                               const int4* __restrict__ cell_nodes,
-                                                               const float4* __restrict__ disp,
-                                                               const T* __restrict__ V, T* __restrict__ out) {
+__global__ void __launch_bounds__(kBlock)
+    trilinear_ilp_kernel(int64_t v0, int64_t v1, const float4* __restrict__ packed,
+                         const int4* __restrict__ cell_nodes, const float4* __restrict__ disp,
+                         const T* __restrict__ V, T* __restrict__ out) {
   const int64_t b0 = v0 + int64_t(blockIdx.x) * (kBlock * VPT) + threadIdx.x;
   float4 pk[VPT];
   T vv[VPT][3];
@@ -215,8 +221,14 @@ __global__ void __launch_bounds__(kBlock) trilinear_ilp_kernel(int64_t v0, int64
   for (int k = 0; k < VPT; ++k) {
     const int c = __float_as_int(pk[k].x);
     const int4 n0 = __ldg(cell_nodes + 2 * c), n1 = __ldg(cell_nodes + 2 * c + 1);
-    ids[k][0] = n0.x; ids[k][1] = n0.y; ids[k][2] = n0.z; ids[k][3] = n0.w;
-    ids[k][4] = n1.x; ids[k][5] = n1.y; ids[k][6] = n1.z; ids[k][7] = n1.w;
+    ids[k][0] = n0.x;
+    ids[k][1] = n0.y;
+    ids[k][2] = n0.z;
+    ids[k][3] = n0.w;
+    ids[k][4] = n1.x;
+    ids[k][5] = n1.y;
+    ids[k][6] = n1.z;
+    ids[k][7] = n1.w;
   }
   float4 d[VPT][8];
 #pragma unroll
@@ -242,7 +254,6 @@ __global__ void __launch_bounds__(kBlock) trilinear_ilp_kernel(int64_t v0, int64
     }
   }
 }
-
 
 }  // namespace
 
@@ -287,13 +298,12 @@ void experimental_transfer(const TransferKernel& kernel, bool trilinear, int64_t
     const int4* cn = reinterpret_cast<const int4*>(table);
     const int vpt = kernel.vertices_per_thread >= 4 ? 4 : kernel.vertices_per_thread >= 2 ? 2 : 1;
     const int blocks = int((v1 - v0 + int64_t(kBlock) * vpt - 1) / (int64_t(kBlock) * vpt));
-    auto k = kernel.streaming
-                 ? (vpt == 4   ? trilinear_ilp_kernel<T, 4, true>
-                    : vpt == 2 ? trilinear_ilp_kernel<T, 2, true>
-                               : trilinear_ilp_kernel<T, 1, true>)
-                 : (vpt == 4   ? trilinear_ilp_kernel<T, 4, false>
-                    : vpt == 2 ? trilinear_ilp_kernel<T, 2, false>
-                               : trilinear_ilp_kernel<T, 1, false>);
+    auto k = kernel.streaming ? (vpt == 4   ? trilinear_ilp_kernel<T, 4, true>
+                                 : vpt == 2 ? trilinear_ilp_kernel<T, 2, true>
+                                            : trilinear_ilp_kernel<T, 1, true>)
+                              : (vpt == 4   ? trilinear_ilp_kernel<T, 4, false>
+                                 : vpt == 2 ? trilinear_ilp_kernel<T, 2, false>
+                                            : trilinear_ilp_kernel<T, 1, false>);
     k<<<blocks, kBlock, 0, st>>>(v0, v1, packed, cn, disp, V, out);
   } else if (kernel.mode == TransferKernel::Staged) {
     (trilinear ? staged_kernel<T, true> : staged_kernel<T, false>)<<<blocks_for(v1 - v0), kBlock, 0, st>>>(

@@ -8,9 +8,9 @@
 #include <unordered_set>
 
 #include "backend.h"
-#include "energy.h"
 #include "handle_system.h"
 #include "hierarchy.h"
+#include "rigid_fit.h"
 
 namespace larap {
 namespace {

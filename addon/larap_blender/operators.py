@@ -18,6 +18,11 @@ def _mesh_for(context, name=""):
     return core.mesh_for(context, name)
 
 
+def _windowed(context):
+    """A window with an event loop (not background mode): a long operation can run as a modal."""
+    return getattr(context, "window", None) is not None and not bpy.app.background
+
+
 def _seconds(ms):
     return "%.2f s" % (ms / 1e3) if ms >= 1000.0 else "%.0f ms" % ms
 
@@ -220,7 +225,7 @@ class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
         start = self.frame_start if self.frame_start >= 0 else scene.frame_start
         end = self.frame_end if self.frame_end >= 0 else scene.frame_end
         self.p = Progress(context.window_manager)
-        if self.interactive and context.window is not None and not bpy.app.background:
+        if self.interactive and _windowed(context):
             self.job = core.AnimationBake(obj, scene, start, end, step=self.step, prefix=self.prefix,
                                           overwrite=self.overwrite)
             self.p.begin(len(self.job.frames))

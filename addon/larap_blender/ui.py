@@ -56,7 +56,7 @@ def _content_width(context):
 
 def _label_lines(layout, text, icon="ERROR", width=None, context=None):
     """A message wrapped to the panel's width (measured), first line with ``icon``."""
-    avail = (width or _content_width(context or bpy.context)) - 24  # the icon
+    avail = (width or _content_width(context or bpy.context)) - 48  # icon, padding, a box's border
     words, line, first = text.split(), "", True
     for w in words:
         cand = (line + " " + w).strip()
@@ -80,9 +80,8 @@ def _op(layout, idname, text=None, **props):
 def _pose_toggles(layout, s):
     row = layout.row(align=True)
     row.prop(s, "live", text="Live", toggle=True, icon="PLAY" if s.live else "PAUSE")
-    sub = row.row(align=True)
-    sub.prop(s, "show_overlay", text="Lattice", toggle=True, icon="MOD_LATTICE")
-    sub.prop(s, "overlay_xray", text="", toggle=True, icon="XRAY")
+    row.prop(s, "show_overlay", text="Lattice", toggle=True, icon="MOD_LATTICE")
+    row.prop(s, "overlay_xray", text="", toggle=True, icon="XRAY")
 
 
 def _bake_state(layout, obj, context=None):
@@ -92,7 +91,8 @@ def _bake_state(layout, obj, context=None):
     col = box.column(align=True)
     first, last = s.bake_keys[0].name, s.bake_keys[len(s.bake_keys) - 1].name
     col.label(text="Baked: %d keys" % len(s.bake_keys), icon="RENDER_ANIMATION")
-    col.label(text="%s to %s" % (first, last), icon="BLANK1")
+    col.label(text="from %s" % first, icon="BLANK1")
+    col.label(text="to %s" % last, icon="BLANK1")
     _label_lines(col, "The baked keys play the animation; the %s key is hidden%s." % (
         s.shape_key, " and Live paused" if not s.live else ""), icon="INFO", context=context)
     _op(box, "larap.remove_bake")

@@ -8,7 +8,8 @@ Registration only. The add-on's rooms, each one concept (imports point down this
 * ``mesh_data.py``: the only writer of vertex positions and shape keys (numpy buffers).
 * ``targets.py``: handle targets (rest matrices, where handle vertices go, signatures).
 * ``runtime.py``: the runtime-only engine cache and what each engine was told.
-* ``transaction.py``: all or nothing (snapshot, restore on error).
+* ``transaction.py``: all or nothing (snapshot, restore on error); ``progress.py``: Blender's
+  progress indicator and the whole time of a long operation.
 * ``solving.py``: one solve, targets -> engine -> pose key; ``session.py``: dragging a handle.
 * ``handlers.py``: live mode and the app handlers; ``core.py``: bind/unbind, handles, bake, apply
   (and the names scripts use); ``farm.py``: Load Farm Bake (a farm's PC2 cache played by Mesh Cache).
@@ -30,13 +31,13 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
     for _mod in _MODULES:  # noqa: F821 (set by the first load)
         importlib.reload(_mod)
 else:
-    from . import (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
+    from . import (engine, props, errors, progress, mesh_data, targets, runtime, transaction, solving, session,
                    handlers, core, operators, modal, farm, ui, overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
-_MODULES = (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
+_MODULES = (engine, props, errors, progress, mesh_data, targets, runtime, transaction, solving, session,
             handlers, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)

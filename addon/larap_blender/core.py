@@ -11,6 +11,8 @@ part-way leaves the object as it was. The other rooms of the add-on (see their d
 The names scripts use (``core.solve``, ``core.runtime``, ``core.PoseSession``, ...) are
 re-exported here from those rooms.
 """
+import contextlib
+
 import bpy
 import numpy as np
 from mathutils import Matrix, Vector
@@ -23,14 +25,17 @@ from .runtime import (_RUNTIMES, Runtime, after_undo, build_runtime, drop_runtim
                       prune_runtimes, resolve_device, runtime)
 from .session import PoseSession, handle_points
 from .solving import FINAL_TOLERANCE, SolveResult, current_pose, solve
-from .targets import (flat, gather, handle_local_transform, membership, record_rest, target_alive,
-                      target_matrix, target_names, target_signature)
+from .progress import Progress, progress as _progress
+from .targets import (flat, gather, handle_local_transform, meshes_driven_by, membership, quiet_retarget,
+                      record_rest, retarget_keep_pose, target_alive, target_matrix, target_names,
+                      target_signature)
 from .transaction import preserve_on_error
 
 __all__ = [
     # this module's operations
     "bind", "unbind", "add_handle", "remove_handle", "bake_shape_key", "bake_animation", "apply_pose",
-    "HANDLE_GROUP_PREFIX", "TARGET_PREFIX",
+    "back_to_rest", "remove_bake", "AnimationBake", "LarapCancelled", "is_baked", "pose_key_hidden", "posed_meshes", "mesh_for",
+    "HANDLE_GROUP_PREFIX", "TARGET_PREFIX", "Progress",
     # re-exported from the rooms below, for scripts and tests that use ``core.<name>``
     "ENGINE_ERRORS", "LarapError", "TopologyChanged", "check_object", "engine_errors",
     "live_suspended", "live_update", "suspend_live",
@@ -40,8 +45,8 @@ __all__ = [
     "resolve_device", "runtime",
     "PoseSession", "handle_points",
     "FINAL_TOLERANCE", "SolveResult", "current_pose", "solve",
-    "gather", "handle_local_transform", "membership", "record_rest", "target_alive", "target_matrix",
-    "target_names", "target_signature",
+    "gather", "handle_local_transform", "meshes_driven_by", "membership", "record_rest",
+    "retarget_keep_pose", "target_alive", "target_matrix", "target_names", "target_signature",
     "preserve_on_error",
 ]
 
@@ -53,35 +58,118 @@ TARGET_PREFIX = "LARAP_target_"
 # Operations
 
 
-def bind(obj):
-    """Build the lattice + binding from the rest positions, record the targets' rest matrices and
-    write the (rest) pose key. Rebinding resets the pose: the current target transforms become rest.
+def bind(obj, *, keep_pose=True, progress=None):
+    """Build the lattice + binding from the rest positions and write the pose key.
+
+    First bind: the targets' current transforms are their rest (the mesh shows its rest shape).
+    Rebind (already bound) with ``keep_pose``: the rest stays the rest, so the targets keep posing
+    the mesh and the Empties stay with their vertices; a handle without a rest yet gets one where
+    its vertices are now. ``keep_pose=False``: the current transforms become the rest (the mesh
+    returns to its rest shape, the targets stay where they are). ``progress``: a Progress.
     A failure leaves the object as it was (mesh, keys, settings, previous binding)."""
     check_object(obj)
-    with preserve_on_error(obj):
-        return _bind(obj)
+    p = _progress(progress, 3)
+    with p, preserve_on_error(obj):
+        return _bind(obj, keep_pose, p)
 
 
-def _bind(obj):
+def _bind(obj, keep_pose, p):
     s = obj.larap
     me = obj.data
-    rt = build_runtime(obj)
+    rebind = s.bound and keep_pose
+    p.step(0)
+    rt = build_runtime(obj)  # the long part: the lattice and its factorisation
+    p.step(1)
     s.bind_vertex_count = len(me.vertices)
     s.bind_topology = rt.topology
     for h in s.handles:
-        if target_alive(h.target):
-            try:
+        if not target_alive(h.target):
+            h.has_rest = False
+            continue
+        try:
+            if rebind and h.has_rest:
+                if h.rest_target is None:  # bound before rest targets were recorded: it is this target's
+                    h.rest_target, h.rest_subtarget = h.target, h.subtarget
+            elif rebind:
+                if not retarget_keep_pose(obj, h, membership(obj, rt).get(h.vertex_group)):
+                    h.has_rest = False
+            else:
                 record_rest(h)
-            except LarapError:
-                h.has_rest = False
-        else:
+        except LarapError:
             h.has_rest = False
     had_keys = me.shape_keys is not None
     _, created = ensure_pose_key(obj, s)
     if created and not had_keys:
         s.created_basis = True
     s.bound = True
-    return solve(obj, weights="final", validate="fast")
+    p.step(2)
+    result = solve(obj, weights="final", validate="fast")
+    p.step(3)
+    return result
+
+
+def back_to_rest(obj):
+    """Move every handle's target back to its rest (where it was at bind) and solve: the mesh
+    returns to its rest shape and the Empties go back with their vertices. Bones are posed back
+    the same way. Animated targets return to their animation at the next frame change."""
+    check_object(obj, need_bound=True)
+    from mathutils import Matrix as _M
+    moved, warnings = set(), []
+    for h in obj.larap.handles:
+        if not h.has_rest or not target_alive(h.target):
+            continue
+        rest = _M([h.rest_matrix[0:4], h.rest_matrix[4:8], h.rest_matrix[8:12], h.rest_matrix[12:16]])
+        key = (h.target.name_full, h.subtarget)
+        if key in moved:
+            warnings.append("%s is the target of several handles; it went to the first one's rest" % key[0])
+            continue
+        try:
+            target_matrix(h)
+        except LarapError as exc:
+            warnings.append(str(exc))
+            continue
+        if h.subtarget:
+            h.target.pose.bones[h.subtarget].matrix = h.target.matrix_world.inverted_safe() @ rest
+        else:
+            h.target.matrix_world = rest
+        moved.add(key)
+    bpy.context.view_layer.update()
+    result = solve(obj, weights="final", validate="full")
+    result.warnings = warnings + list(result.warnings)
+    return result
+
+
+def mesh_for(context, name=""):
+    """The mesh an operator acts on: the object named ``name`` (the panel names it), else the
+    active mesh, else the one bound mesh the active target (Empty, armature) drives."""
+    if name:
+        obj = bpy.data.objects.get(name)
+        if obj is None:
+            raise LarapError("No object named %r" % name)
+        return obj
+    obj = getattr(context, "object", None)
+    if obj is not None and obj.type != "MESH":
+        meshes = posed_meshes(context)
+        if len(meshes) == 1:
+            return meshes[0]
+        if len(meshes) > 1:
+            raise LarapError("%r drives several meshes (%s); select the one to use"
+                             % (obj.name, ", ".join(m.name for m in meshes)))
+    return obj
+
+
+def posed_meshes(context):
+    """The bound meshes the 3D View's tools act on: the active mesh, or, while a handle's target
+    (an Empty, an armature) is active, the bound meshes it drives."""
+    obj = getattr(context, "object", None)
+    if obj is None:
+        return []
+    try:
+        if obj.type == "MESH":
+            return [obj]
+    except ReferenceError:
+        return []
+    return meshes_driven_by(obj)
 
 
 def unbind(obj):
@@ -118,10 +206,25 @@ def _kabsch(p, q):
     return m
 
 
-def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subtarget="", collection=None):
+def empty_size(points, mesh_size, view_distance=None):
+    """Display size (radius, in the mesh's local units) of a handle's Empty for a group of
+    ``points`` (k,3 local): about a third of the part's middle extent (for a flat cap, its width;
+    for two feet, a foot's length, not the span between them), at least a readable size in the view
+    (2% of ``view_distance``, local units), and never more than half the part."""
+    ext = np.sort(points.max(axis=0) - points.min(axis=0)) if len(points) > 1 else np.zeros(3)
+    part = float(ext[1])
+    seen = 0.02 * view_distance if view_distance else 0.02 * 2.0 * mesh_size
+    if part <= 0.0:
+        return max(min(seen, 0.05 * mesh_size), 1e-4)
+    return max(min(max(0.35 * part, seen), 0.5 * part), 1e-4)
+
+
+def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subtarget="", collection=None,
+               view_distance=None):
     """Add a handle group. ``from_selection``: new vertex group LARAP_handle_N from the selected vertices.
     Without a target, an Empty is created at the group's centre (placed on the current pose when
-    the mesh is posed, so adding a handle does not make the mesh jump)."""
+    the mesh is posed, so adding a handle does not make the mesh jump), sized by
+    :func:`empty_size` (``view_distance``: the 3D View's, in world units, when there is one)."""
     check_object(obj, allow_edit_mode=from_selection)
     s = obj.larap
     if from_selection:
@@ -165,13 +268,15 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
                 fit = _kabsch(rest, q)
         mw = obj.matrix_world
         centre = rest.mean(axis=0)
-        ext = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(idx) > 1 else 0.0
+        scale = max(mw.to_scale().length / 3 ** 0.5, 1e-9)
+        mesh_pts = rest_positions(obj)
+        mesh_size = float(np.linalg.norm(mesh_pts.max(axis=0) - mesh_pts.min(axis=0))) if len(mesh_pts) else 1.0
+        radius = empty_size(rest, max(mesh_size, 1e-3), view_distance / scale if view_distance else None)
         name = TARGET_PREFIX + (vertex_group[len(HANDLE_GROUP_PREFIX):] if vertex_group.startswith(HANDLE_GROUP_PREFIX)
                                 else vertex_group)
         empty = bpy.data.objects.new(name, None)
         empty.empty_display_type = "SPHERE"
-        size = ext * 0.6 if ext > 0 else 0.1 * max(obj.dimensions.length, 1e-3)
-        empty.empty_display_size = max(size / max(mw.to_scale().length / 3 ** 0.5, 1e-9), 1e-4)
+        empty.empty_display_size = radius  # the Empty's matrix carries the mesh's scale
         rest_world = mw @ Matrix.Translation(Vector(centre))
         coll = collection or (obj.users_collection[0] if obj.users_collection else bpy.context.scene.collection)
         coll.objects.link(empty)
@@ -182,11 +287,15 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
     h = s.handles.add()
     h.created_target = target is not None and rest_matrix is not None
     h.vertex_group = vertex_group
-    h.target = target
-    h.subtarget = subtarget
+    with quiet_retarget():
+        h.target = target
+        h.subtarget = subtarget
     if rest_matrix is not None:
         h.rest_matrix = flat(rest_matrix)
         h.has_rest = True
+        h.rest_target, h.rest_subtarget = target, ""
+    elif s.bound:
+        retarget_keep_pose(obj, h, idx)  # a posed mesh does not jump: the target takes over from here
     else:
         record_rest(h)
     s.active_handle = len(s.handles) - 1
@@ -243,61 +352,190 @@ def _set_linear(key, data_path):
             kp.interpolation = "LINEAR"
 
 
-def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_", overwrite=False):
+def bake_animation(obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_", overwrite=False,
+                   progress=None):
     """One solve per frame from the animated targets (warm-started), each pose a key named
     ``<prefix><frame:04d>`` keyed to 1 on its frame and 0 on the neighbouring baked frames.
-    The live pose key is set to 0 afterwards so it does not add to the baked keys. Existing keys of
-    those names are replaced only with ``overwrite``; a failure part-way leaves the keys as they were."""
-    check_object(obj, need_bound=True)
-    if frame_end < frame_start:
-        raise LarapError("Frame range is empty (%d..%d)" % (frame_start, frame_end))
-    step = max(1, int(step))
-    frames = list(range(int(frame_start), int(frame_end) + 1, step))
-    keys = obj.data.shape_keys
-    wanted = ["%s%04d" % (prefix, f) for f in frames]
-    if keys is not None:
-        taken = [nm for nm in wanted if nm in keys.key_blocks]
-        protected = {obj.larap.shape_key, keys.reference_key.name if keys.reference_key else ""}
-        if any(nm in protected for nm in wanted):
-            raise LarapError("The prefix %r would overwrite the Basis or pose key; choose another" % prefix)
-        if taken and not overwrite:
-            raise LarapError("Shape keys %s exist; choose another prefix or enable Overwrite"
-                             % ", ".join(repr(nm) for nm in taken[:3]) + (" ..." if len(taken) > 3 else ""))
-    with preserve_on_error(obj):
-        return _bake_animation(obj, scene, frames, step, prefix)
+    Afterwards the baked keys play the animation: the live pose key is hidden (value 0, so it does
+    not add to them) and Live is paused; :func:`remove_bake` undoes both. Existing keys of those
+    names are replaced only with ``overwrite``; a failure part-way leaves the keys as they were.
+    ``progress``: a Progress (one step per frame). Returns the key names."""
+    job = AnimationBake(obj, scene, frame_start, frame_end, step=step, prefix=prefix, overwrite=overwrite)
+    p = _progress(progress, len(job.frames))
+    with p:
+        job.begin()
+        while not job.step():
+            p.step(job.done)
+        p.step(job.done)
+        return job.finish()
 
 
-def _bake_animation(obj, scene, frames, step, prefix):
-    old_frame, old_sub = scene.frame_current, scene.frame_subframe
-    names = []
-    with suspend_live():
+class LarapCancelled(LarapError):
+    """The artist cancelled a long operation (Esc): everything was put back."""
+
+
+class AnimationBake:
+    """Bake Animation as steps of one frame, so an operator can show progress between them and
+    cancel (Esc) with everything put back: ``begin()``, ``step()`` until it returns True,
+    ``finish()``; or ``cancel()`` at any point. A step that raises puts everything back too."""
+
+    def __init__(self, obj, scene, frame_start, frame_end, *, step=1, prefix="LARAP_", overwrite=False):
+        check_object(obj, need_bound=True)
+        if frame_end < frame_start:
+            raise LarapError("Frame range is empty (%d..%d)" % (frame_start, frame_end))
+        self.obj, self.scene, self.prefix = obj, scene, prefix
+        self.step_size = max(1, int(step))
+        self.frames = list(range(int(frame_start), int(frame_end) + 1, self.step_size))
+        keys = obj.data.shape_keys
+        wanted = ["%s%04d" % (prefix, f) for f in self.frames]
+        if keys is not None:
+            taken = [nm for nm in wanted if nm in keys.key_blocks]
+            protected = {obj.larap.shape_key, keys.reference_key.name if keys.reference_key else ""}
+            if any(nm in protected for nm in wanted):
+                raise LarapError("The prefix %r would overwrite the Basis or pose key; choose another" % prefix)
+            if taken and not overwrite:
+                raise LarapError("Shape keys %s exist; choose another prefix or enable Overwrite"
+                                 % ", ".join(repr(nm) for nm in taken[:3]) + (" ..." if len(taken) > 3 else ""))
+        self.names = []
+        self.done = 0
+        self._stack = None
+
+    def begin(self):
+        obj, scene = self.obj, self.scene
+        keys = obj.data.shape_keys
+        self.had_action = bool(keys and keys.animation_data and keys.animation_data.action)
+        self.old_frame = (scene.frame_current, scene.frame_subframe)
+        self._stack = contextlib.ExitStack()
+        self._stack.enter_context(preserve_on_error(obj))
+        self._stack.enter_context(suspend_live())
+        return self
+
+    def step(self):
+        """Bake the next frame; True when every frame is baked."""
+        if self.done >= len(self.frames):
+            return True
         try:
-            first = True
-            for f in frames:
-                scene.frame_set(f)
-                solve(obj, weights="final", validate="full" if first else "fast")
-                first = False
-                name = "%s%04d" % (prefix, f)
-                kb = write_key(obj, name, runtime(obj).out)
-                keys = obj.data.shape_keys
-                path = 'key_blocks["%s"].value' % name
-                ad = keys.animation_data
-                if ad is not None and ad.action is not None:
-                    fc = ad.action.fcurves.find(path)
-                    if fc is not None:
-                        ad.action.fcurves.remove(fc)
-                for frame, value in ((f - step, 0.0), (f, 1.0), (f + step, 0.0)):
-                    kb.value = value
-                    kb.keyframe_insert("value", frame=frame)
-                _set_linear(keys, path)
-                names.append(name)
+            self._bake_frame(self.frames[self.done])
+        except BaseException as exc:
+            self._abort(exc)
+            raise
+        self.done += 1
+        return self.done >= len(self.frames)
+
+    def _bake_frame(self, f):
+        obj, step = self.obj, self.step_size
+        self.scene.frame_set(f)
+        solve(obj, weights="final", validate="full" if self.done == 0 else "fast")
+        name = "%s%04d" % (self.prefix, f)
+        kb = write_key(obj, name, runtime(obj).out)
+        keys = obj.data.shape_keys
+        path = 'key_blocks["%s"].value' % name
+        ad = keys.animation_data
+        if ad is not None and ad.action is not None:
+            fc = ad.action.fcurves.find(path)
+            if fc is not None:
+                ad.action.fcurves.remove(fc)
+        for frame, value in ((f - step, 0.0), (f, 1.0), (f + step, 0.0)):
+            kb.value = value
+            kb.keyframe_insert("value", frame=frame)
+        _set_linear(keys, path)
+        self.names.append(name)
+
+    def _restore_frame(self):
+        self.scene.frame_set(self.old_frame[0], subframe=self.old_frame[1])
+
+    def _abort(self, exc):
+        stack, self._stack = self._stack, None
+        if stack is None:
+            return
+        try:
+            self._restore_frame()
         finally:
-            scene.frame_set(old_frame, subframe=old_sub)
-    pose = obj.data.shape_keys.key_blocks.get(obj.larap.shape_key)
-    if pose is not None:
-        pose.value = 0.0
-    obj.data.update_tag()
-    return names
+            stack.__exit__(type(exc), exc, exc.__traceback__)  # puts the keys back; does not raise
+
+    def cancel(self):
+        """Put everything back as before begin() (Esc)."""
+        self._abort(LarapCancelled("Bake cancelled"))
+
+    def finish(self):
+        """The aftermath, said in the data: the baked keys play, the pose key is hidden, Live paused."""
+        obj = self.obj
+        s = obj.larap
+        try:
+            self._restore_frame()
+            keys = obj.data.shape_keys
+            pose = keys.key_blocks.get(s.shape_key)
+            if pose is not None:
+                pose.value = 0.0
+            recorded = {item.name for item in s.bake_keys}
+            for name in self.names:
+                if name not in recorded:
+                    s.bake_keys.add().name = name
+            if s.live:
+                s.bake_paused_live = True
+                s.live = False
+            action = keys.animation_data.action if keys.animation_data else None
+            if not self.had_action and action is not None and not s.bake_created_action:
+                s.bake_created_action = action.name
+            obj.data.update_tag()
+        except BaseException as exc:
+            self._abort(exc)
+            raise
+        stack, self._stack = self._stack, None
+        stack.close()
+        return list(self.names)
+
+
+def is_baked(obj):
+    """Bake Animation's keys are on the object (Remove Bake takes them away)."""
+    return len(obj.larap.bake_keys) > 0
+
+
+def pose_key_hidden(obj):
+    """The pose key exists but does not show (value 0 or muted): what Live and Solve write is not seen."""
+    keys = obj.data.shape_keys
+    kb = keys.key_blocks.get(obj.larap.shape_key) if keys is not None else None
+    return kb is not None and (kb.value == 0.0 or kb.mute)
+
+
+def remove_bake(obj):
+    """Remove what Bake Animation made, in one step: its shape keys and their animation (the
+    f-curves; the action too when the bake created it and nothing else is left in it), show the
+    pose key again and resume Live if the bake paused it. Keys LARAP did not bake are kept."""
+    check_object(obj)
+    s = obj.larap
+    if not is_baked(obj):
+        raise LarapError("%r has no baked animation to remove" % obj.name)
+    with preserve_on_error(obj):
+        names = [item.name for item in s.bake_keys]
+        keys = obj.data.shape_keys
+        removed = 0
+        if keys is not None:
+            ad = keys.animation_data
+            action = ad.action if ad is not None else None
+            for name in names:
+                if action is not None:
+                    fc = action.fcurves.find('key_blocks["%s"].value' % name)
+                    if fc is not None:
+                        action.fcurves.remove(fc)
+                kb = keys.key_blocks.get(name)
+                if kb is not None and kb != keys.reference_key and kb.name != s.shape_key:
+                    obj.shape_key_remove(kb)
+                    removed += 1
+            keys = obj.data.shape_keys
+            if (action is not None and keys is not None and keys.animation_data is not None
+                    and action.name == s.bake_created_action and len(action.fcurves) == 0):
+                keys.animation_data.action = None  # left without users: Blender drops it on save
+            pose = keys.key_blocks.get(s.shape_key) if keys is not None else None
+            if pose is not None and pose.value == 0.0:
+                pose.value = 1.0
+        s.bake_keys.clear()
+        s.bake_created_action = ""
+        if s.bake_paused_live:
+            s.bake_paused_live = False
+            s.live = True
+        obj.data.update_tag()
+    return removed
 
 
 def apply_pose(obj):

@@ -15,7 +15,7 @@ from bpy.app.handlers import persistent
 from .errors import LarapError
 from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
 from .solving import solve
-from .targets import target_names, target_signature
+from .targets import handle_problems, target_names, target_signature
 
 _SUSPEND = [0]
 
@@ -117,6 +117,25 @@ def larap_undo_post(*_args):
     """Undo/redo replaced the mesh, keys, settings and targets with a stored state: the cached
     engines re-validate, forget their warm start, and Live does not overwrite the restored pose."""
     after_undo()
+    refresh_warnings_after_undo()
+
+
+def refresh_warnings_after_undo():
+    """The panel's warnings describe the restored state, not the undone one: an error is dropped
+    unless its cause (a topology change) is still there, and the handle warnings are re-read from
+    the restored settings (nothing is solved or written here)."""
+    for obj in list(bpy.data.objects):
+        try:
+            if obj.type != "MESH" or not obj.larap.bound:
+                continue
+            rt = runtime(obj)
+            if rt is None:
+                continue
+            if len(obj.data.vertices) == obj.larap.bind_vertex_count or "topology" not in rt.last_error:
+                rt.last_error = ""
+            rt.warnings = handle_problems(obj)
+        except (ReferenceError, AttributeError):
+            continue
 
 
 _HANDLERS = (

@@ -8,12 +8,18 @@ import math
 
 import bpy
 import numpy as np
-from bpy.props import IntProperty
+from bpy.props import IntProperty, StringProperty
 from mathutils import Quaternion, Vector
 
+from . import overlay
+from .core import mesh_for
 from .errors import LarapError, check_object
 from .runtime import ensure_runtime
 from .session import PoseSession, handle_points
+
+PICK_PROMPT = "LARAP Pose: click a handle (its vertices are shown, the one under the cursor is highlighted) | RMB/Esc cancel"
+PICK_MISS = "LARAP Pose: no handle under the cursor; click on or near a highlighted handle vertex | RMB/Esc cancel"
+PICK_RADIUS = 75.0  # pixels from a handle vertex that still grab it
 
 
 _AXES = {"X": Vector((1, 0, 0)), "Y": Vector((0, 1, 0)), "Z": Vector((0, 0, 1))}
@@ -36,17 +42,49 @@ def _project(region, rv3d, points):
     return out
 
 
+def _status(context, text):
+    """The status bar's text (None: Blender's own); nothing where there is no workspace."""
+    ws = getattr(context, "workspace", None)
+    if ws is not None:
+        ws.status_text_set(text)
+
+
+def _leave_edit_mode(context, obj):
+    """Pose, like Bind and Solve, takes the mesh out of Edit Mode (edits are kept)."""
+    if obj is not None and getattr(obj, "type", None) == "MESH" and obj.mode == "EDIT":
+        if context.view_layer.objects.active != obj:
+            raise LarapError("%r is in Edit Mode; switch to Object Mode first" % obj.name)
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def _hover(op, context, mouse):
+    """Waiting for a click: highlight the handle under the cursor."""
+    hovered = op._pick(context, mouse, quiet=True)
+    if overlay.picking(op.obj) != hovered:
+        overlay.set_picking(op.obj, hovered)
+        context.area.tag_redraw()
+    return hovered
+
+
+def _end_picking(op, context):
+    overlay.clear_picking(getattr(op, "obj", None))
+    _status(context, None)
+
+
 class LARAP_OT_pose(bpy.types.Operator):
-    """Drag a handle in the 3D View (click the nearest handle vertex); G/R/S move/rotate/scale, X/Y/Z lock axis, Shift precision, type a value, LMB/Enter confirm, RMB/Esc cancel"""
+    """Drag a handle in the 3D View (click near a handle vertex); G/R/S move/rotate/scale, X/Y/Z lock axis, Shift precision, type a value, LMB/Enter confirm, RMB/Esc cancel"""
     bl_idname = "larap.pose"
-    bl_label = "LARAP Pose (Drag Handle)"
+    bl_label = "LARAP Pose"
     bl_options = {"UNDO", "BLOCKING"}
 
     handle: IntProperty(name="Handle", default=-1, description="Handle to drag (-1: click one)")
+    mesh: StringProperty(name="Mesh", options={"HIDDEN", "SKIP_SAVE"},
+                         description="Mesh to pose (empty: the active mesh, or the one the active target drives)")
 
     def invoke(self, context, event):
-        obj = context.object
         try:
+            obj = mesh_for(context, getattr(self, "mesh", ""))
+            _leave_edit_mode(context, obj)
             check_object(obj, need_bound=True)
             if context.area is None or context.area.type != "VIEW_3D" or context.region_data is None:
                 raise LarapError("Pose needs a 3D View (hover it and use F3)")
@@ -66,7 +104,13 @@ class LARAP_OT_pose(bpy.types.Operator):
                 return {"CANCELLED"}
         else:
             self.state = "PICK"
-            context.area.header_text_set("LARAP Pose: click a handle vertex (orange) to grab it | RMB/Esc cancel")
+            if len(handle_points(obj)[0]) == 0:
+                self.report({"ERROR"}, "No handles with vertices and targets to grab")
+                return {"CANCELLED"}
+            context.area.header_text_set(PICK_PROMPT)
+            _status(context, PICK_PROMPT)
+            overlay.set_picking(obj, None)
+            _hover(self, context, self.mouse)
         context.window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
@@ -88,15 +132,16 @@ class LARAP_OT_pose(bpy.types.Operator):
         self._update(context)
         return True
 
-    def _pick(self, context, mouse):
-        pts, owner = handle_points(self.obj)
+    def _pick(self, context, mouse, quiet=False):
+        pts, owner = handle_points(self.obj, refresh=not quiet)
         if len(pts) == 0:
-            self.report({"ERROR"}, "No handles with vertices and targets to grab")
+            if not quiet:
+                self.report({"ERROR"}, "No handles with vertices and targets to grab")
             return None
         scr = _project(context.region, context.region_data, pts)
         dist = np.linalg.norm(scr - np.array(mouse), axis=1)
         i = int(np.argmin(dist))
-        if not np.isfinite(dist[i]) or dist[i] > 75.0:
+        if not np.isfinite(dist[i]) or dist[i] > PICK_RADIUS:
             return None
         return int(owner[i])
 
@@ -178,6 +223,7 @@ class LARAP_OT_pose(bpy.types.Operator):
 
     def _finish(self, context, ok):
         context.area.header_text_set(None)
+        _end_picking(self, context)
         if self.session is not None and self.session.active:
             try:
                 if ok:
@@ -199,10 +245,15 @@ class LARAP_OT_pose(bpy.types.Operator):
         if event.type in {"RIGHTMOUSE", "ESC"} and event.value == "PRESS":
             return self._finish(context, False)
         if self.state == "PICK":
+            if event.type == "MOUSEMOVE":
+                _hover(self, context, mouse)
             if event.type == "LEFTMOUSE" and event.value == "PRESS":
                 handle = self._pick(context, mouse)
                 if handle is None:
+                    context.area.header_text_set(PICK_MISS)
+                    _status(context, PICK_MISS)
                     return {"RUNNING_MODAL"}
+                _end_picking(self, context)
                 self.confirm_on_release = True
                 if not self._start(context, handle, mouse):
                     return self._finish(context, False)
@@ -250,6 +301,7 @@ class LARAP_OT_pose(bpy.types.Operator):
         # Blender aborts the modal (e.g. file load): restore.
         if getattr(self, "session", None) is not None and self.session.active:
             self.session.cancel()
+        _end_picking(self, context)
         if context.area is not None:
             context.area.header_text_set(None)
 

@@ -1,11 +1,30 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operators: thin wrappers over core.py that turn LarapError into reports (the modal drag is in modal.py)."""
+"""Operators: thin wrappers over core.py that turn LarapError into reports (the modal drag is in modal.py).
+
+Every label is "LARAP <what it does>" (F3 and the undo history read that); the panel and menus
+show the same words without the prefix. Long operations (Bind, Bake Animation) show Blender's
+progress indicator and report the whole operation's time.
+"""
 import traceback
 
 import bpy
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from . import core
+from .progress import Progress
+
+
+def _mesh_for(context, name=""):
+    return core.mesh_for(context, name)
+
+
+def _windowed(context):
+    """A window with an event loop (not background mode): a long operation can run as a modal."""
+    return getattr(context, "window", None) is not None and not bpy.app.background
+
+
+def _seconds(ms):
+    return "%.2f s" % (ms / 1e3) if ms >= 1000.0 else "%.0f ms" % ms
 
 
 def _leave_edit_mode(op, context, obj):
@@ -48,22 +67,42 @@ class _LarapOp:
 
 
 class LARAP_OT_bind(_LarapOp, bpy.types.Operator):
-    """Build the lattice for the active mesh and bind it (rest: Basis key; current target transforms become rest)"""
+    """Build the lattice that carries the mesh (from its rest shape, the Basis key). Rebinding after an edit keeps the current pose"""
     bl_idname = "larap.bind"
     bl_label = "LARAP Bind"
 
+    keep_pose: BoolProperty(name="Keep Pose", default=True,
+                            description="When already bound: the targets keep posing the mesh (off: their current "
+                            "places become the rest and the mesh returns to its rest shape)")
+
     def run(self, context, obj):
         _leave_edit_mode(self, context, obj)
-        result = core.bind(obj)
+        was_bound = obj is not None and obj.type == "MESH" and obj.larap.bound
+        p = Progress(context.window_manager)
+        result = core.bind(obj, keep_pose=self.keep_pose, progress=p)
         rt = core.runtime(obj)
         d = rt.deformer
-        self.report({"INFO"}, "Bound %r: %d vertices, %d lattice nodes, %d cells on %s (%.1f ms)"
-                    % (obj.name, d.num_vertices, d.num_nodes, d.num_cells, d.device, result.ms))
+        self.report({"INFO"}, "%s %r in %s: %d vertices, lattice of %d cells (%d nodes) on %s%s"
+                    % ("Rebound" if was_bound else "Bound", obj.name, _seconds(p.ms), d.num_vertices,
+                       d.num_cells, d.num_nodes, d.device, ", pose kept" if was_bound and self.keep_pose else ""))
         _report_warnings(self, result)
 
 
+class LARAP_OT_back_to_rest(_LarapOp, bpy.types.Operator):
+    """Move every handle's target back to where it was at bind: the mesh returns to its rest shape and the Empties go back with it"""
+    bl_idname = "larap.back_to_rest"
+    bl_label = "LARAP Back to Rest"
+
+    def run(self, context, obj):
+        obj = _mesh_for(context)
+        _leave_edit_mode(self, context, obj)
+        result = core.back_to_rest(obj)
+        _report_warnings(self, result)
+        self.report({"INFO"}, "%r is back at rest (its targets moved back)" % obj.name)
+
+
 class LARAP_OT_unbind(_LarapOp, bpy.types.Operator):
-    """Unbind: remove the LARAP shape key and forget the lattice (handles and vertex groups are kept)"""
+    """Remove the LARAP shape key and forget the lattice (handles, vertex groups and targets are kept)"""
     bl_idname = "larap.unbind"
     bl_label = "LARAP Unbind"
 
@@ -99,8 +138,9 @@ class LARAP_OT_handle_add(_LarapOp, bpy.types.Operator):
                 group = obj.vertex_groups.active.name
             else:
                 raise core.LarapError("Select vertices in Edit Mode or give a vertex group")
+        rv3d = getattr(context, "region_data", None)
         h = core.add_handle(obj, vertex_group=group, from_selection=from_selection, target=target,
-                            subtarget=self.bone)
+                            subtarget=self.bone, view_distance=getattr(rv3d, "view_distance", None))
         self.report({"INFO"}, "Handle %r -> %s" % (h.vertex_group, h.target.name if h.target else "?"))
 
 
@@ -121,20 +161,26 @@ class LARAP_OT_handle_remove(_LarapOp, bpy.types.Operator):
 
 
 class LARAP_OT_solve(_LarapOp, bpy.types.Operator):
-    """Solve once from the current target transforms (final weights) and write the LARAP shape key"""
+    """Pose the mesh once from where its handles' targets are now (the final, smooth result)"""
     bl_idname = "larap.solve"
     bl_label = "LARAP Solve"
 
+    mesh: StringProperty(name="Mesh", options={"HIDDEN", "SKIP_SAVE"},
+                         description="Mesh to pose (empty: the active mesh, or the one the active target drives)")
+
     def run(self, context, obj):
+        obj = _mesh_for(context, self.mesh)
         _leave_edit_mode(self, context, obj)
         result = core.solve(obj, weights="final")
         _report_warnings(self, result)
-        self.report({"INFO"}, "Solved %r: %d handle vertices, %.1f ms (%s)"
-                    % (obj.name, result.handles, result.ms, result.weights))
+        hidden = " (the LARAP key is off while the baked animation plays: Remove Bake to see it)" \
+            if core.pose_key_hidden(obj) else ""
+        self.report({"INFO"}, "Posed %r in %s: %d handle vertices%s"
+                    % (obj.name, _seconds(result.ms), result.handles, hidden))
 
 
 class LARAP_OT_bake_shape_key(_LarapOp, bpy.types.Operator):
-    """Store the current pose as a new shape key relative to Basis (value 0)"""
+    """Store the current pose as a new shape key (relative to Basis, value 0)"""
     bl_idname = "larap.bake_shape_key"
     bl_label = "LARAP Bake Shape Key"
 
@@ -152,9 +198,10 @@ class LARAP_OT_bake_shape_key(_LarapOp, bpy.types.Operator):
 
 
 class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
-    """Solve every frame of a range from the animated targets and store each pose as a shape key keyed on its frame"""
+    """Pose every frame of a range from the animated targets and store each pose as a shape key keyed on its frame (Esc cancels). Afterwards the baked keys play; Live is paused and the LARAP key hidden until Remove Bake"""
     bl_idname = "larap.bake_animation"
     bl_label = "LARAP Bake Animation"
+    _timer = None
 
     frame_start: IntProperty(name="Start", default=-1, description="First frame (-1: scene start)")
     frame_end: IntProperty(name="End", default=-1, description="Last frame (-1: scene end)")
@@ -162,12 +209,14 @@ class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
     prefix: StringProperty(name="Prefix", default="LARAP_")
     overwrite: BoolProperty(name="Overwrite", default=False,
                             description="Replace existing shape keys of those names (otherwise it is an error)")
+    interactive: BoolProperty(default=False, options={"HIDDEN", "SKIP_SAVE"})
 
     def invoke(self, context, event):
         if self.frame_start < 0:
             self.frame_start = context.scene.frame_start
         if self.frame_end < 0:
             self.frame_end = context.scene.frame_end
+        self.interactive = True  # after the dialog: bake frame by frame in a modal, Esc cancels
         return context.window_manager.invoke_props_dialog(self)
 
     def run(self, context, obj):
@@ -175,14 +224,84 @@ class LARAP_OT_bake_animation(_LarapOp, bpy.types.Operator):
         scene = context.scene
         start = self.frame_start if self.frame_start >= 0 else scene.frame_start
         end = self.frame_end if self.frame_end >= 0 else scene.frame_end
+        self.p = Progress(context.window_manager)
+        if self.interactive and _windowed(context):
+            self.job = core.AnimationBake(obj, scene, start, end, step=self.step, prefix=self.prefix,
+                                          overwrite=self.overwrite)
+            self.p.begin(len(self.job.frames))
+            self.job.begin()
+            self._timer = context.window_manager.event_timer_add(0.001, window=context.window)
+            context.window_manager.modal_handler_add(self)
+            context.workspace.status_text_set("LARAP Bake Animation: %d frames | Esc cancel" % len(self.job.frames))
+            return {"RUNNING_MODAL"}
         names = core.bake_animation(obj, scene, start, end, step=self.step, prefix=self.prefix,
-                                    overwrite=self.overwrite)
-        self.report({"INFO"}, "Baked %d frames into shape keys %s..%s (the %r key is set to 0)"
-                    % (len(names), names[0] if names else "", names[-1] if names else "", obj.larap.shape_key))
+                                    overwrite=self.overwrite, progress=self.p)
+        self._report_done(obj, names)
+
+    def _report_done(self, obj, names):
+        self.report({"INFO"}, "Baked %d frames in %s into shape keys %s..%s; they play now (Live paused, the %r key "
+                    "hidden; Remove Bake to pose again)" % (len(names), _seconds(self.p.ms), names[0] if names else "",
+                                                             names[-1] if names else "", obj.larap.shape_key))
+
+    def _stop(self, context):
+        if self._timer is not None:
+            context.window_manager.event_timer_remove(self._timer)
+            self._timer = None
+        self.p.end()
+        if getattr(context, "workspace", None) is not None:
+            context.workspace.status_text_set(None)
+
+    def modal(self, context, event):
+        if event.type == "ESC" and event.value == "PRESS":
+            self.job.cancel()
+            self._stop(context)
+            self.report({"WARNING"}, "Bake cancelled after %d of %d frames; nothing was changed"
+                        % (self.job.done, len(self.job.frames)))
+            return {"CANCELLED"}
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"RUNNING_MODAL"}  # blocking: the bake owns the UI until it ends
+        try:
+            finished = self.job.step()
+            self.p.step(self.job.done)
+            if not finished:
+                return {"RUNNING_MODAL"}
+            names = self.job.finish()
+        except core.LarapError as exc:
+            self._stop(context)
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        except Exception as exc:
+            traceback.print_exc()
+            self._stop(context)
+            self.report({"ERROR"}, "LARAP internal error (%s: %s); details on the console" % (type(exc).__name__, exc))
+            return {"CANCELLED"}
+        self._stop(context)
+        self._report_done(self.job.obj, names)
+        return {"FINISHED"}
+
+    def cancel(self, context):  # Blender ends the modal (file load, window closed): put everything back
+        if getattr(self, "job", None) is not None:
+            self.job.cancel()
+        self._stop(context)
+
+
+class LARAP_OT_remove_bake(_LarapOp, bpy.types.Operator):
+    """Remove the shape keys Bake Animation made and their animation, show the LARAP key again and resume Live (one undo step)"""
+    bl_idname = "larap.remove_bake"
+    bl_label = "LARAP Remove Bake"
+
+    def run(self, context, obj):
+        obj = _mesh_for(context)
+        _leave_edit_mode(self, context, obj)
+        core.check_object(obj)
+        live = obj.larap.bake_paused_live
+        n = core.remove_bake(obj)
+        self.report({"INFO"}, "Removed %d baked shape keys and their animation from %r%s"
+                    % (n, obj.name, "; Live resumed" if live else ""))
 
 
 class LARAP_OT_apply(_LarapOp, bpy.types.Operator):
-    """Write the pose into the mesh (destructive: Basis changes, the LARAP key is removed and the mesh unbound)"""
+    """Make the pose the mesh's shape (destructive: Basis changes, the LARAP key is removed and the mesh unbound)"""
     bl_idname = "larap.apply"
     bl_label = "LARAP Apply Pose"
 
@@ -198,11 +317,13 @@ class LARAP_OT_apply(_LarapOp, bpy.types.Operator):
 
 classes = (
     LARAP_OT_bind,
+    LARAP_OT_back_to_rest,
     LARAP_OT_unbind,
     LARAP_OT_handle_add,
     LARAP_OT_handle_remove,
     LARAP_OT_solve,
     LARAP_OT_bake_shape_key,
     LARAP_OT_bake_animation,
+    LARAP_OT_remove_bake,
     LARAP_OT_apply,
 )

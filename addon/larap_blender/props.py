@@ -4,10 +4,14 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
                        FloatVectorProperty, IntProperty, PointerProperty, StringProperty)
 
-WEIGHT_ITEMS = [
-    ("trilinear", "Trilinear", "Trilinear interpolation of the lattice nodes (fast, C0 across cells)"),
-    ("bspline", "B-Spline", "Quadratic B-spline interpolation over 27 nodes (C1 across cells, a bit slower)"),
+WEIGHT_ITEMS = [  # what the artist sees: the look and the cost, the maths in the tooltip
+    ("trilinear", "Fast", "Follows the lattice cell by cell: quickest, may show faint creases at cell borders "
+     "(trilinear interpolation)"),
+    ("bspline", "Smooth", "Blends each point over its neighbouring cells: no creases, a bit slower "
+     "(quadratic B-spline interpolation)"),
 ]
+# Where the documentation lives: the add-on's copy when packaged with it, else the source tree's.
+DOC_FILE = "addon.md"
 DEVICE_ITEMS = [
     ("DEFAULT", "Default", "Use the device set in the add-on preferences"),
     ("cpu", "CPU", "Solve on the CPU"),
@@ -25,17 +29,30 @@ def _redraw(self, context):
             area.tag_redraw()
 
 
+def _retarget(self, context):
+    # Picking another target (or bone) must not move the mesh: record the new target's rest where
+    # the handle's vertices are now (targets.retarget_keep_pose). An update callback never raises.
+    from . import targets
+    targets.on_target_changed(self)
+
+
 def _poll_target(self, obj):
     # Any object may drive a handle (Empties and armatures are the usual ones), but not the mesh itself.
     return obj != self.id_data
 
 
+class LARAP_PG_name(bpy.types.PropertyGroup):
+    """A name in a list (a shape key made by Bake Animation)."""
+
+
 class LARAP_PG_handle(bpy.types.PropertyGroup):
     """A handle: the vertices of a vertex group follow a target (object or bone) since bind."""
     vertex_group: StringProperty(name="Vertex Group", description="Vertices that follow the target")
-    target: PointerProperty(name="Target", type=bpy.types.Object, poll=_poll_target,
-                            description="Object (Empty) or armature whose motion since bind moves the vertices")
-    subtarget: StringProperty(name="Bone", description="Bone of an armature target (empty: the object itself)")
+    target: PointerProperty(name="Target", type=bpy.types.Object, poll=_poll_target, update=_retarget,
+                            description="Object (Empty) or armature that moves these vertices. Changing it keeps "
+                            "the pose: the new target takes over from where the vertices are now")
+    subtarget: StringProperty(name="Bone", update=_retarget,
+                              description="Bone of an armature target (empty: the armature object itself)")
     rest_matrix: FloatVectorProperty(name="Rest Matrix", size=16, subtype="NONE",  # row-major 4x4
                                      default=(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1),
                                      description="World matrix of the target when the handle was bound")
@@ -44,13 +61,18 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
     enabled: BoolProperty(name="Enabled", default=True, description="Use this handle when solving")
     created_target: BoolProperty(default=False, description="LARAP created the target Empty (only such an Empty "
                                  "is ever deleted by LARAP, and only when asked)")
+    # Whose world matrix ``rest_matrix`` is (a pointer follows renames): retargeting reads the old
+    # target's motion from it, so the new target takes over without a jump.
+    rest_target: PointerProperty(type=bpy.types.Object, options={"HIDDEN"})
+    rest_subtarget: StringProperty(options={"HIDDEN"})
 
 
 class LARAP_PG_settings(bpy.types.PropertyGroup):
     bound: BoolProperty(name="Bound", default=False)
     resolution_mode: EnumProperty(
         name="Resolution",
-        items=[("AUTO", "Auto", "The engine's default lattice resolution (about 6000 cells)"),
+        description="How fine the lattice that carries the mesh is (finer: follows thin parts better, slower)",
+        items=[("AUTO", "Auto", "About 6000 cells around the mesh (the cell size is shown once bound)"),
                ("CELLS", "Cells", "Approximate number of lattice cells"),
                ("SIZE", "Cell Size", "Edge length of a lattice cell in object units")],
         default="AUTO", update=_redraw)
@@ -58,19 +80,34 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                        description="Approximate number of lattice cells (more: finer, slower)")
     cell_size: FloatProperty(name="Cell Size", default=0.1, min=1e-6, soft_min=1e-3, subtype="DISTANCE",
                              update=_redraw, description="Edge length of a lattice cell (object units)")
-    weights_interactive: EnumProperty(name="Interactive Weights", items=WEIGHT_ITEMS, default="trilinear",
-                                      description="Interpolation used while dragging and for live updates")
-    weights_final: EnumProperty(name="Final Weights", items=WEIGHT_ITEMS, default="bspline",
-                                description="Interpolation used by Solve, Bake, Apply and when a drag is confirmed")
-    gamma: FloatProperty(name="Gamma", default=0.1, min=1e-6, soft_max=10.0, update=_redraw,
-                         description="Rigidity (scale-free; larger is stiffer, handles are soft constraints)")
+    weights_interactive: EnumProperty(name="Dragging", items=WEIGHT_ITEMS, default="trilinear",
+                                      description="How the mesh follows the lattice while you drag and in Live "
+                                      "mode (Fast keeps dragging responsive)")
+    weights_final: EnumProperty(name="Final", items=WEIGHT_ITEMS, default="bspline",
+                                description="How the mesh follows the lattice for the result: Solve, a confirmed "
+                                "drag, Bake and Apply (Smooth has no creases)")
+    gamma: FloatProperty(name="Stiffness", default=0.1, min=1e-6, soft_max=10.0, update=_redraw,
+                         description="How much the mesh resists bending and stretching against the pull of the "
+                         "handles. Higher: stiffer, handles lag behind their targets; lower: handles are "
+                         "followed closely and the rest bends more. Does not depend on the mesh's size")
     iterations: IntProperty(name="Iterations", default=5, min=1, soft_max=50, max=1000,
-                            description="Local/global iterations per solve (warm-started)")
+                            description="Refinement steps per update while dragging and in Live mode (more: closer "
+                            "to the final shape, slower). Solve refines until the shape settles")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="DEFAULT")
     live: BoolProperty(name="Live", default=False,
-                       description="Solve again whenever a handle target moves (G/R/S on the Empties poses the mesh)")
+                       description="Pose the mesh whenever a handle's target moves (G/R/S on the Empties, "
+                       "bones, animation playback)")
     show_overlay: BoolProperty(name="Show Lattice", default=False, update=_redraw,
-                               description="Draw the deformed lattice and the handle vertices in the 3D View")
+                               description="Draw the lattice that carries the mesh and the handle vertices in the "
+                               "3D View")
+    overlay_xray: BoolProperty(name="Lattice X-Ray", default=False, update=_redraw,
+                               description="Draw the whole lattice through the mesh (off: only what is in front of "
+                               "the mesh, like Blender's wireframe overlay)")
+    # Bake Animation's aftermath: its keys, which only Remove Bake removes, and what it paused.
+    bake_keys: CollectionProperty(type=LARAP_PG_name)
+    bake_paused_live: BoolProperty(default=False, description="Live was on before the bake and was paused by it")
+    bake_created_action: StringProperty(default="", description="Name of the shape-key action the bake created "
+                                        "(removed with the bake when nothing else is left in it)")
     shape_key: StringProperty(name="Shape Key", default="LARAP",
                               description="Shape key that receives the pose")
     handles: CollectionProperty(type=LARAP_PG_handle)
@@ -94,7 +131,13 @@ class LARAP_AddonPreferences(bpy.types.AddonPreferences):
     def draw(self, context):
         from . import engine
         layout = self.layout
-        layout.prop(self, "default_device")
+        row = layout.row()
+        row.prop(self, "default_device")
+        url = documentation_url()
+        if url:
+            row.operator("wm.url_open", text="Documentation", icon="HELP").url = url
+        else:
+            row.label(text="Documentation: docs/addon.md in the LARAP sources", icon="HELP")
         mod = engine.get()
         if mod is None:
             layout.label(text=engine.error(), icon="ERROR")
@@ -103,13 +146,24 @@ class LARAP_AddonPreferences(bpy.types.AddonPreferences):
             layout.label(text="Devices: %s" % ", ".join(engine.available_devices()))
 
 
+def documentation_url():
+    """file:// URL of the add-on's manual (docs/addon.md): the copy packaged inside the add-on, else
+    the one in the source tree the add-on runs from; "" when neither is there."""
+    import os
+    here = os.path.dirname(os.path.abspath(__file__))
+    for path in (os.path.join(here, "docs", DOC_FILE), os.path.join(here, os.pardir, os.pardir, "docs", DOC_FILE)):
+        if os.path.isfile(path):
+            return "file://" + os.path.realpath(path)
+    return ""
+
+
 def preferences(context=None):
     context = context or bpy.context
     addon = context.preferences.addons.get(__package__)
     return addon.preferences if addon is not None else None
 
 
-classes = (LARAP_PG_handle, LARAP_PG_settings, LARAP_AddonPreferences)
+classes = (LARAP_PG_name, LARAP_PG_handle, LARAP_PG_settings, LARAP_AddonPreferences)
 
 
 def register_properties():

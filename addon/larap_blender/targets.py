@@ -5,12 +5,17 @@ A handle (``Object.larap.handles``) is a vertex group that follows a target (an 
 of an armature) since bind. At bind the target's world matrix is recorded as its rest
 (:func:`record_rest`); at each pose :func:`gather` maps the rest positions of every usable
 handle's vertices through the target's motion since then, expressed in the mesh's local space.
+Picking another target for a bound handle keeps the pose (:func:`retarget_keep_pose`): the new
+target's rest is recorded where the handle's vertices are now, so nothing jumps.
 :func:`target_signature` is what a solve was made from, so Live can skip a solve that would give
 the same pose.
 
 The runtime (runtime.py) caches the vertex-group membership; this module reads and fills that
 cache but never builds or drops a runtime.
 """
+import contextlib
+
+import bpy
 import numpy as np
 from mathutils import Matrix
 
@@ -36,20 +41,24 @@ def target_alive(target):
         return False
 
 
-def target_matrix(handle, overrides=None):
-    """World matrix of a handle's target now, or raise LarapError (missing target/bone).
+def object_matrix(t, bone, label="", overrides=None):
+    """World matrix now of the object ``t`` (or its pose bone ``bone``), or raise LarapError.
     ``overrides``: {(target name, bone): world matrix} used instead (a drag in progress)."""
-    t = handle.target
     if not target_alive(t):
-        raise LarapError("handle %r has no target (deleted?)" % handle.vertex_group)
-    key = (t.name_full, handle.subtarget)
+        raise LarapError("handle %r has no target (deleted?)" % label)
+    key = (t.name_full, bone)
     if overrides and key in overrides:
         return overrides[key]
-    if handle.subtarget:
-        if t.type != "ARMATURE" or t.pose is None or handle.subtarget not in t.pose.bones:
-            raise LarapError("handle %r: bone %r not found in %r" % (handle.vertex_group, handle.subtarget, t.name))
-        return t.matrix_world @ t.pose.bones[handle.subtarget].matrix
+    if bone:
+        if t.type != "ARMATURE" or t.pose is None or bone not in t.pose.bones:
+            raise LarapError("handle %r: bone %r not found in %r" % (label, bone, t.name))
+        return t.matrix_world @ t.pose.bones[bone].matrix
     return t.matrix_world.copy()
+
+
+def target_matrix(handle, overrides=None):
+    """World matrix of a handle's target now, or raise LarapError (missing target/bone)."""
+    return object_matrix(handle.target, handle.subtarget, handle.vertex_group, overrides)
 
 
 def handle_local_transform(obj, handle, overrides=None):
@@ -61,9 +70,116 @@ def handle_local_transform(obj, handle, overrides=None):
     return np.array(local, dtype=np.float64)
 
 
-def record_rest(handle, overrides=None):
-    handle.rest_matrix = flat(target_matrix(handle, overrides))
-    handle.has_rest = True
+def record_rest(handle, overrides=None, motion=None):
+    """Record the handle's rest: its target's world matrix now, or with ``motion`` (the world motion
+    the handle's vertices made since rest, a Matrix) the matrix the target had ``motion`` ago."""
+    now = target_matrix(handle, overrides)
+    with quiet_retarget():
+        handle.rest_matrix = flat(now if motion is None else motion.inverted_safe() @ now)
+        handle.has_rest = True
+        handle.rest_target = handle.target
+        handle.rest_subtarget = handle.subtarget
+
+
+# ----------------------------------------------------------------------------------------------
+# Retargeting keeps the pose
+
+_QUIET = [0]
+
+
+@contextlib.contextmanager
+def quiet_retarget():
+    """LARAP's own writes of a handle's target (adding a handle, recording a rest) are not an
+    artist's retarget: the update callback leaves them alone."""
+    _QUIET[0] += 1
+    try:
+        yield
+    finally:
+        _QUIET[0] -= 1
+
+
+def handle_motion(handle):
+    """World motion (Matrix) of the handle since its rest: what the target whose matrix the rest
+    is (``rest_target``/``rest_subtarget``) did since then; None when that is unknown or gone."""
+    if not handle.has_rest or not target_alive(handle.rest_target):
+        return None
+    try:
+        now = object_matrix(handle.rest_target, handle.rest_subtarget, handle.vertex_group)
+    except LarapError:
+        return None
+    return now @ _matrix(handle.rest_matrix).inverted_safe()
+
+
+def _fit(p, q):
+    """4x4 numpy map with q ~ M p: affine when the points span 3-D, else rigid (3+ points not on a
+    line), else a translation."""
+    cp, cq = p.mean(axis=0), q.mean(axis=0)
+    a, b = p - cp, q - cq
+    m = np.eye(4)
+    sv = np.linalg.svd(a, compute_uv=False) if len(p) >= 3 else np.zeros(1)
+    if len(p) >= 4 and sv[-1] > 1e-6 * max(sv[0], 1e-30):
+        m[:3, :3] = np.linalg.lstsq(a, b, rcond=None)[0].T
+    elif len(p) >= 3 and sv[min(1, len(sv) - 1)] > 1e-6 * max(sv[0], 1e-30):
+        u, _, vt = np.linalg.svd(a.T @ b)
+        d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+        m[:3, :3] = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    m[:3, 3] = cq - m[:3, :3] @ cp
+    return m
+
+
+def pose_fit(obj, handle, ids=None):
+    """World motion (Matrix) that best carries the handle's vertices from rest to where the pose
+    key shows them now; None without a pose key or vertices. ``ids``: the group's vertex ids
+    (read from the vertex group when not given)."""
+    from .mesh_data import key_positions, rest_positions
+    posed = key_positions(obj, obj.larap.shape_key)
+    if posed is None or handle.vertex_group not in obj.vertex_groups:
+        return None
+    if ids is None:
+        ids = np.flatnonzero(vertex_group_weights(obj, [handle.vertex_group])[handle.vertex_group] > 0.0)
+    if len(ids) == 0:
+        return None
+    local = _fit(rest_positions(obj)[ids].astype(np.float64), posed[ids].astype(np.float64))
+    mw = obj.matrix_world
+    return mw @ Matrix(local.tolist()) @ mw.inverted_safe()
+
+
+def retarget_keep_pose(obj, handle, ids=None):
+    """The handle's target (or bone) was changed: record the new target's rest so the handle's
+    vertices stay where they are now. The motion they made comes from the previous target (exact),
+    else from the pose key (a fit), else there is none (not posed). Returns True when a rest was
+    recorded; False when the handle cannot pose yet (no target, no bone picked)."""
+    t = handle.target
+    if not target_alive(t):
+        return False
+    if handle.subtarget and t.type != "ARMATURE":
+        with quiet_retarget():
+            handle.subtarget = ""  # a bone name means nothing on an Empty
+    try:
+        target_matrix(handle)
+    except LarapError:
+        return False  # e.g. an armature whose bone is not picked yet: wait for it
+    motion = handle_motion(handle)
+    if motion is None:
+        motion = pose_fit(obj, handle, ids)
+    record_rest(handle, motion=motion)
+    return True
+
+
+def on_target_changed(handle):
+    """Update callback of ``target``/``subtarget``: keep the pose of a bound mesh. Never raises."""
+    if _QUIET[0]:
+        return
+    try:
+        obj = handle.id_data
+        if obj is None or obj.type != "MESH" or not obj.larap.bound:
+            return
+        from .runtime import runtime  # here: runtime.py imports this module
+        rt = runtime(obj)
+        ids = rt.membership.get(handle.vertex_group) if rt is not None and rt.membership_sig is not None else None
+        retarget_keep_pose(obj, handle, ids)
+    except Exception as exc:  # an update callback must not raise into Blender's UI
+        print("LARAP: retargeting %r: %s: %s" % (getattr(handle, "vertex_group", "?"), type(exc).__name__, exc))
 
 
 def membership(obj, rt):
@@ -116,6 +232,27 @@ def gather(obj, rt, overrides=None):
     return uniq.astype(np.int64), np.ascontiguousarray(tgt[first]), warnings
 
 
+def handle_problems(obj):
+    """What would make a solve skip a handle, read from the settings alone (no data is written:
+    safe in handlers): missing vertex group, missing target or bone, not bound yet."""
+    problems = []
+    for h in obj.larap.handles:
+        if not h.enabled:
+            continue
+        label = h.vertex_group or "(no group)"
+        if h.vertex_group not in obj.vertex_groups:
+            problems.append("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
+                            "again in the handle's settings)" % label)
+        elif not h.has_rest:
+            problems.append("handle %r skipped: not bound (rebind)" % label)
+        else:
+            try:
+                target_matrix(h)
+            except LarapError as exc:
+                problems.append("%s; skipped" % exc)
+    return problems
+
+
 def target_signature(obj):
     """Current target matrices of an object's handles (to skip redundant live solves)."""
     sig = [tuple(obj.matrix_world.col[3]) + tuple(obj.matrix_world.col[0]) + tuple(obj.matrix_world.col[1])
@@ -139,3 +276,18 @@ def target_names(obj):
         except ReferenceError:
             pass
     return names
+
+
+def meshes_driven_by(obj):
+    """Bound meshes with a handle whose target is ``obj`` (an Empty, an armature), in name order:
+    the panel and the operators pose these while a target is the active object."""
+    if obj is None:
+        return []
+    found = []
+    for ob in bpy.data.objects:
+        try:
+            if ob.type == "MESH" and ob.larap.bound and any(h.target == obj for h in ob.larap.handles):
+                found.append(ob)
+        except ReferenceError:
+            continue
+    return sorted(found, key=lambda o: o.name_full)

@@ -23,7 +23,7 @@ def _snapshot(obj):
     s = obj.larap
     snap = {"mesh": mesh_positions(me),
             "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
-            "handles": [(tuple(h.rest_matrix), h.has_rest) for h in s.handles],
+            "handles": [(tuple(h.rest_matrix), h.has_rest, h.rest_target, h.rest_subtarget) for h in s.handles],
             "active_shape_key_index": obj.active_shape_key_index,
             "show_only_shape_key": obj.show_only_shape_key,
             "keys": None, "anim": None}
@@ -95,9 +95,10 @@ def _restore(obj, snap):
     obj.active_shape_key_index = snap["active_shape_key_index"]
     for f, v in snap["settings"].items():
         setattr(s, f, v)
-    for h, (m, has) in zip(s.handles, snap["handles"]):
+    for h, (m, has, rest_target, rest_subtarget) in zip(s.handles, snap["handles"]):
         h.rest_matrix = m
         h.has_rest = has
+        h.rest_target, h.rest_subtarget = rest_target, rest_subtarget
     restore_entry(obj, snap["runtime"])
     me.update()
 

@@ -7,8 +7,8 @@ import pytest
 
 from conftest import ADDON, _our_handlers, activate, disable_addon, enable_addon, make_bar
 
-OPERATORS = ("bind", "unbind", "handle_add", "handle_remove", "solve", "pose", "bake_shape_key",
-             "bake_animation", "apply")
+OPERATORS = ("bind", "unbind", "handle_add", "handle_remove", "solve", "pose", "back_to_rest", "bake_shape_key",
+             "bake_animation", "remove_bake", "apply")
 
 
 def test_enable_registers_everything(addon):
@@ -74,7 +74,8 @@ def test_overlay_draw_handler_lifecycle(addon):
 
 def test_overlay_draw_callback_headless(core):
     """The callback itself, with gpu calls stubbed (no GPU context in background mode): it finds a
-    renamed object's engine and skips a stale lattice after an undo-like invalidation."""
+    renamed object's engine, and after an undo-like invalidation draws the rest lattice (labelled
+    so), never the engine's stale pose."""
     from conftest import bar_with_handles
     from larap_blender import overlay
     obj, *_ = bar_with_handles(core)
@@ -88,12 +89,17 @@ def test_overlay_draw_callback_headless(core):
     gb.batch_for_shader = lambda shader, kind, data: made.append((kind, len(data["pos"]))) or kind
     try:
         overlay._CACHE.clear()
-        lattice, handles = overlay._batches(obj, rt, None)
-        assert lattice == "LINES" and handles == "POINTS"
+        lattice, handles = overlay._batches(obj, rt, None, True)
+        assert lattice == "LINES" and set(handles.values()) == {"POINTS"} and len(handles) == 2
+        assert overlay.lattice_state(obj, rt) == "pose"
+        n_edges = made[0][1]
         core.after_undo()  # what undo_post does
         overlay._CACHE.clear()
-        lattice, handles = overlay._batches(obj, core.runtime(obj), None)
-        assert lattice is None and handles == "POINTS"  # the engine's lattice is no longer the shown pose
+        made.clear()
+        lattice, handles = overlay._batches(obj, core.runtime(obj), None, True)
+        # the engine's lattice is no longer the shown pose: the rest lattice, labelled "rest"
+        assert overlay.lattice_state(obj, core.runtime(obj)) == "rest"
+        assert lattice == "LINES" and made[0][1] == n_edges and set(handles.values()) == {"POINTS"}
     finally:
         gb.batch_for_shader = real
 

@@ -1,0 +1,187 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+# Retargeting a handle and rebinding keep the pose; going back to rest is its own action.
+# Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_retarget_rebind.py
+import math
+
+import bpy
+import numpy as np
+import pytest
+from mathutils import Euler, Matrix, Vector
+
+from conftest import activate, bar_with_handles, coords, diagonal
+
+
+def posed_bar(core):
+    """The bar with its Right Empty moved up and turned, solved: (obj, rest, left, right, targets, pose)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.6
+    targets[1].rotation_euler = Euler((0.0, math.radians(-30), 0.0))
+    bpy.context.view_layer.update()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[right, 2] - rest[right, 2]).max() > 0.3  # really posed
+    return obj, rest, left, right, targets, pose
+
+
+def new_empty(name, location, rotation=(0.0, 0.0, 0.0)):
+    e = bpy.data.objects.new(name, None)
+    bpy.context.scene.collection.objects.link(e)
+    e.location = location
+    e.rotation_euler = Euler(rotation)
+    bpy.context.view_layer.update()
+    return e
+
+
+def armature(name="Arm"):
+    arm_data = bpy.data.armatures.new(name)
+    arm = bpy.data.objects.new(name, arm_data)
+    bpy.context.scene.collection.objects.link(arm)
+    activate(arm)
+    bpy.ops.object.mode_set(mode="EDIT")
+    b = arm_data.edit_bones.new("Tip")
+    b.head, b.tail = (2.5, 1.0, 0.0), (3.5, 1.0, 0.3)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    arm.location = (0.3, -0.2, 0.1)
+    bpy.context.view_layer.update()
+    return arm
+
+
+def test_retarget_to_an_empty_keeps_the_pose(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    diag = diagonal(rest)
+    other = new_empty("Elsewhere", (5.0, -3.0, 2.0), (0.4, 0.2, 1.1))  # far away, turned
+    obj.larap.handles[1].target = other  # as the panel's field does (the update callback)
+    h = obj.larap.handles[1]
+    assert h.has_rest and h.rest_target == other
+    activate(obj)
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diag  # no jump
+    # The new target now poses the handle: moving it up moves the handle's vertices up as much.
+    other.location.z += 0.4
+    bpy.context.view_layer.update()
+    bpy.ops.larap.solve()
+    moved = coords(obj, "LARAP")
+    assert abs((moved[right, 2] - pose[right, 2]).mean() - 0.4) < 0.02 * diag
+
+
+def test_retarget_to_an_armature_then_a_bone_keeps_the_pose(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    diag = diagonal(rest)
+    arm = armature()
+    h = obj.larap.handles[1]
+    h.target = arm  # first the armature object (no bone yet) ...
+    activate(obj)
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diag
+    h.subtarget = "Tip"  # ... then its bone: each step keeps the pose
+    assert h.rest_target == arm and h.rest_subtarget == "Tip"
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diag
+    arm.pose.bones["Tip"].location = (0.0, 0.0, 0.3)  # bone-local z: here the world's -x..z plane
+    bpy.context.view_layer.update()
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP")[right] - pose[right]).max() > 0.1  # the bone poses it now
+    # Back from the bone to an Empty: the bone name is cleared, the pose still kept.
+    posed_by_bone = coords(obj, "LARAP")
+    e = new_empty("Back", (0.0, 0.0, 0.0))
+    h.target = e
+    assert h.subtarget == ""
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP") - posed_by_bone).max() < 1e-3 * diag
+
+
+def test_retarget_without_the_old_target_fits_the_pose(core):
+    """A file bound before rest targets were recorded (or the old target deleted): the motion
+    comes from where the pose key shows the handle's vertices."""
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    diag = diagonal(rest)
+    h = obj.larap.handles[1]
+    h.rest_target = None
+    h.target = new_empty("Fresh", (1.0, 2.0, 3.0), (0.3, 0.0, 0.0))
+    activate(obj)
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 0.01 * diag
+
+
+def test_retarget_of_an_unbound_mesh_records_nothing(core):
+    from conftest import add_group, make_bar
+    obj = make_bar()
+    add_group(obj, "G", [0, 1, 2])
+    bpy.ops.larap.handle_add(vertex_group="G")
+    h = obj.larap.handles[0]
+    before = tuple(h.rest_matrix)
+    h.target = new_empty("X", (1.0, 1.0, 1.0))
+    assert tuple(h.rest_matrix) == before  # bind records the rest
+
+
+def subdivide(obj):
+    activate(obj)
+    obj.active_shape_key_index = 0
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    bpy.ops.mesh.subdivide()
+    bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def group_ids(obj, name):
+    from larap_blender import mesh_data
+    return np.flatnonzero(mesh_data.vertex_group_weights(obj, [name])[name] > 0)
+
+
+def test_rebind_after_subdivide_keeps_the_pose_and_empties_stay_with_their_vertices(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    diag = diagonal(rest)
+    empty_before = targets[1].matrix_world.copy()
+    gap_before = np.linalg.norm(pose[right].mean(axis=0) - np.array(targets[1].matrix_world.translation))
+    n = len(rest)
+    subdivide(obj)
+    assert len(obj.data.vertices) > n
+    with pytest.raises(RuntimeError, match="topology"):
+        bpy.ops.larap.solve()
+    assert bpy.ops.larap.bind() == {"FINISHED"}  # the panel's Rebind
+    after = coords(obj, "LARAP")
+    assert np.abs(after[:n] - pose).max() < 0.03 * diag  # subdivide keeps the old vertices first
+    assert targets[1].matrix_world == empty_before  # rebind never moves a target
+    ids = group_ids(obj, "Right")
+    gap_after = np.linalg.norm(after[ids].mean(axis=0) - np.array(targets[1].matrix_world.translation))
+    assert abs(gap_after - gap_before) < 0.02 * diag  # the Empty is still with its vertices
+
+
+def test_rebind_without_a_change_changes_nothing(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    mats = [tuple(h.rest_matrix) for h in obj.larap.handles]
+    assert bpy.ops.larap.bind() == {"FINISHED"}
+    assert [tuple(h.rest_matrix) for h in obj.larap.handles] == mats
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diagonal(rest)
+
+
+def test_rebind_with_keep_pose_off_makes_the_current_transforms_rest(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    where = targets[1].matrix_world.copy()
+    assert bpy.ops.larap.bind(keep_pose=False) == {"FINISHED"}
+    assert np.abs(coords(obj, "LARAP") - rest).max() < 1e-3 * diagonal(rest)
+    assert targets[1].matrix_world == where
+
+
+def test_back_to_rest_moves_the_targets_back_and_the_mesh_with_them(core):
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    rest_mats = [Matrix([h.rest_matrix[i:i + 4] for i in (0, 4, 8, 12)]) for h in obj.larap.handles]
+    assert bpy.ops.larap.back_to_rest() == {"FINISHED"}
+    for t, m in zip(targets, rest_mats):
+        assert (t.matrix_world.translation - m.translation).length < 1e-5
+        assert np.allclose(np.array(t.matrix_world), np.array(m), atol=1e-5)
+    assert np.abs(coords(obj, "LARAP") - rest).max() < 1e-3 * diagonal(rest)
+    # One undo step: the pose comes back.
+    assert "UNDO" in bpy.types.LARAP_OT_back_to_rest.bl_options
+
+
+def test_adding_a_handle_with_a_user_target_to_a_posed_mesh_does_not_jump(core):
+    from conftest import add_group
+    obj, rest, left, right, targets, pose = posed_bar(core)
+    mid = np.flatnonzero(np.abs(rest[:, 0]) < 0.1)
+    add_group(obj, "Mid", mid)
+    new_empty("MidTarget", (0.0, 4.0, 0.0))
+    activate(obj)
+    assert bpy.ops.larap.handle_add(vertex_group="Mid", target="MidTarget") == {"FINISHED"}
+    bpy.ops.larap.solve()
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 0.01 * diagonal(rest)

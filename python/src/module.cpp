@@ -10,6 +10,7 @@ void bind_io(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "LARAP native engine (use the `larap` package, not this module directly)";
+  m.attr("__version__") = LARAP_VERSION;
   py::register_exception_translator([](std::exception_ptr p) {
     try {
       if (p) std::rethrow_exception(p);

@@ -725,6 +725,23 @@ void put_vertex(std::string& out, const PolygonMesh& mesh, int64_t i) {
   }
 }
 
+// The vertex and face lines that ASCII PLY and OFF share: "x y z" per vertex, then "n i0 i1 ..."
+// per face.
+void put_ascii_body(std::string& out, const PolygonMesh& mesh) {
+  for (int64_t i = 0; i < mesh.num_vertices(); ++i) {
+    put_vertex(out, mesh, i);
+    out += '\n';
+  }
+  for (int64_t f = 0; f < mesh.num_faces(); ++f) {
+    put_int(out, mesh.face_offsets[f + 1] - mesh.face_offsets[f]);
+    for (int64_t k = mesh.face_offsets[f]; k < mesh.face_offsets[f + 1]; ++k) {
+      out += ' ';
+      put_int(out, mesh.face_indices[k]);
+    }
+    out += '\n';
+  }
+}
+
 std::string write_obj(const PolygonMesh& mesh) {
   std::string out = "# written by LARAP\n";
   out.reserve(static_cast<size_t>(mesh.num_vertices()) * 60 + mesh.face_indices.size() * 9);
@@ -803,18 +820,7 @@ std::string write_ply(const PolygonMesh& mesh, bool ascii) {
   out += wide ? "\nproperty list int int vertex_indices\nend_header\n"
               : "\nproperty list uchar int vertex_indices\nend_header\n";
   if (ascii) {
-    for (int64_t i = 0; i < nv; ++i) {
-      put_vertex(out, mesh, i);
-      out += '\n';
-    }
-    for (int64_t f = 0; f < nf; ++f) {
-      put_int(out, mesh.face_offsets[f + 1] - mesh.face_offsets[f]);
-      for (int64_t k = mesh.face_offsets[f]; k < mesh.face_offsets[f + 1]; ++k) {
-        out += ' ';
-        put_int(out, mesh.face_indices[k]);
-      }
-      out += '\n';
-    }
+    put_ascii_body(out, mesh);
     return out;
   }
   out.reserve(out.size() + static_cast<size_t>(nv) * 24 + static_cast<size_t>(nf) * 4 + mesh.face_indices.size() * 4);
@@ -846,18 +852,7 @@ std::string write_off(const PolygonMesh& mesh) {
   out += ' ';
   put_int(out, mesh.num_faces());
   out += " 0\n";
-  for (int64_t i = 0; i < mesh.num_vertices(); ++i) {
-    put_vertex(out, mesh, i);
-    out += '\n';
-  }
-  for (int64_t f = 0; f < mesh.num_faces(); ++f) {
-    put_int(out, mesh.face_offsets[f + 1] - mesh.face_offsets[f]);
-    for (int64_t k = mesh.face_offsets[f]; k < mesh.face_offsets[f + 1]; ++k) {
-      out += ' ';
-      put_int(out, mesh.face_indices[k]);
-    }
-    out += '\n';
-  }
+  put_ascii_body(out, mesh);
   return out;
 }
 

@@ -25,6 +25,15 @@ def _redraw(self, context):
             area.tag_redraw()
 
 
+def _write_when_off(prop):
+    """Live or Preview turned off: the mesh data catches up with what was shown (catchup.py)."""
+    def update(self, context):
+        if not getattr(self, prop):
+            from . import catchup
+            catchup.setting_turned_off(self.id_data)
+    return update
+
+
 def _poll_target(self, obj):
     # Any object may drive a handle (Empties and armatures are the usual ones), but not the mesh itself.
     return obj != self.id_data
@@ -67,7 +76,7 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
     iterations: IntProperty(name="Iterations", default=5, min=1, soft_max=50, max=1000,
                             description="Local/global iterations per solve (warm-started)")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="DEFAULT")
-    live: BoolProperty(name="Live", default=False,
+    live: BoolProperty(name="Live", default=False, update=_write_when_off("live"),
                        description="Solve again whenever a handle target moves (G/R/S on the Empties poses the mesh)")
     show_overlay: BoolProperty(name="Show Lattice", default=False, update=_redraw,
                                description="Draw the deformed lattice and the handle vertices in the 3D View")
@@ -83,6 +92,10 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                                    "writes or removes a key it did not create)")
     runtime_id: StringProperty(default="", description="Identifies the object's runtime engine cache (stable "
                                "across renames, undo and reloads)")
+    preview: BoolProperty(name="Preview", default=True, update=_write_when_off("preview"),
+                          description="While posing (drag, Live, playback) draw the posed mesh on the GPU from the "
+                          "lattice and write the mesh once the moves pause (ignored in background mode; meshes "
+                          "with modifiers or mixed shape keys are written at each move instead)")
 
 
 class LARAP_AddonPreferences(bpy.types.AddonPreferences):

@@ -29,6 +29,17 @@ def _label_lines(layout, text, icon="ERROR", width=48):
         layout.label(text=line, icon=icon if first else "BLANK1")
 
 
+def _preview_row(layout, obj):
+    """The GPU preview toggle, and what is drawn instead of it when it cannot be used."""
+    from . import preview
+    s = obj.larap
+    row = layout.row(align=True)
+    row.prop(s, "preview", toggle=True, icon="SHADING_SOLID")
+    reason = preview.blocker(obj) if s.preview and s.bound else ""
+    if reason and reason != "background mode":
+        _label_lines(layout, "Preview off (%s): posing writes the mesh" % reason, icon="INFO")
+
+
 class LARAP_UL_handles(bpy.types.UIList):
     bl_idname = "LARAP_UL_handles"
 
@@ -105,6 +116,7 @@ class VIEW3D_PT_larap(bpy.types.Panel):
         row = layout.row(align=True)
         row.prop(s, "live", toggle=True, icon="PLAY" if s.live else "PAUSE")
         row.prop(s, "show_overlay", toggle=True, icon="MOD_LATTICE")
+        _preview_row(layout, obj)
 
         layout.label(text="Handles")
         row = layout.row()

@@ -29,6 +29,7 @@ from .targets import gather, target_signature
 
 FINAL_TOLERANCE = 1e-5  # relative energy decrease at which a final solve stops
 POSE_SIGNATURE_PROP = "_larap_pose"  # ID property: pose_signature() of the targets the pose key holds
+INTERACTIVE = "interactive"  # ... or this: the pose key holds an interactive (unconverged) pose
 
 
 def pose_signature(obj):
@@ -130,10 +131,8 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     elif write:
         write_pose(obj, rt.out)
         rt.needs_catchup = not final
-        if final and not overrides:
-            set_stored_signature(obj, pose_signature(obj))
-        else:
-            set_stored_signature(obj, "")
+        # An interactive pose is recorded as such: a final pose of no targets (catch up on reload).
+        set_stored_signature(obj, pose_signature(obj) if final and not overrides else INTERACTIVE)
         preview.stop(obj)  # the mesh holds the pose now: Blender draws it again
     rt.pose_version += 1
     rt.last_ms = (time.perf_counter() - t0) * 1e3

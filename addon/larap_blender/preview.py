@@ -263,6 +263,23 @@ def prepare(obj):
 # ----------------------------------------------------------------------------------------------
 # The shader (GPUShaderCreateInfo: Blender 3.4+, and the only way on 4.x's Metal/Vulkan backends)
 
+# Per view and object (a uniform block: the push constants stay within the 128 bytes that
+# Metal and Vulkan guarantee). vec4/mat4 members only, so the std140 layout is the packed one.
+_TYPEDEFS = """
+struct LarapView {
+  mat4 model_view;
+  mat4 normal_matrix;
+  vec4 base_color;
+  vec4 material;  /* roughness, metallic, specular on, unlit */
+  vec4 mode;      /* smooth normals, perspective */
+  vec4 ambient;
+  vec4 light_dir[4];
+  vec4 light_diffuse[4];  /* rgb, wrap */
+  vec4 light_specular[4];
+};
+"""
+_VIEW_FIELDS = ("model_view", "normal_matrix", "base_color", "material", "mode", "ambient")
+
 _VERTEX = """
 ivec2 texel(int i) { return ivec2(i % tex_width, i / tex_width); }
 
@@ -289,46 +306,43 @@ void main()
   /* Normals follow the cofactor of the deformation gradient (rest cells are cubes). */
   vec3 n = cross(jv, jw) * nrm.x + cross(jw, ju) * nrm.y + cross(ju, jv) * nrm.z;
   gl_Position = mvp * vec4(p, 1.0);
-  v_pos = (model_view * vec4(p, 1.0)).xyz;
-  v_nrm = normal_matrix * n;
+  v_pos = (view.model_view * vec4(p, 1.0)).xyz;
+  v_nrm = mat3(view.normal_matrix) * n;
 }
 """
 
 _FRAGMENT = """
 void main()
 {
-  vec3 N = (mode.x > 0.5) ? normalize(v_nrm) : normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-  if (mode.x > 0.5 && !gl_FrontFacing) {
+  vec3 N = (view.mode.x > 0.5) ? normalize(v_nrm) : normalize(cross(dFdx(v_pos), dFdy(v_pos)));
+  if (view.mode.x > 0.5 && !gl_FrontFacing) {
     N = -N;
   }
-  vec3 I = (mode.y > 0.5) ? normalize(-v_pos) : vec3(0.0, 0.0, 1.0);
-  vec3 base = base_color.rgb;
-  if (material.w > 0.5) {
-    FragColor = vec4(base, base_color.a);
+  vec3 I = (view.mode.y > 0.5) ? normalize(vec3(v_pos.xy, -v_pos.z)) : vec3(0.0, 0.0, 1.0);
+  vec3 base = view.base_color.rgb;
+  if (view.material.w > 0.5) {
+    FragColor = vec4(base, view.base_color.a);
     return;
   }
-  float rough = material.x;
-  bool spec_on = material.z > 0.5;
-  vec3 diff_col = spec_on ? base * (1.0 - material.y) : base;
-  vec3 spec_col = spec_on ? mix(vec3(0.05), base, material.y) : vec3(0.0);
-  vec3 diff_light = ambient.rgb;
-  vec3 spec_light = ambient.rgb;
+  float rough = view.material.x;
+  bool spec_on = view.material.z > 0.5;
+  vec3 diff_col = spec_on ? base * (1.0 - view.material.y) : base;
+  vec3 spec_col = spec_on ? mix(vec3(0.05), base, view.material.y) : vec3(0.0);
+  vec3 diff_light = view.ambient.rgb;
+  vec3 spec_light = view.ambient.rgb;
   vec3 R = -reflect(I, N);
-  vec4 dirs[4] = vec4[4](light_dir0, light_dir1, light_dir2, light_dir3);
-  vec4 diffs[4] = vec4[4](light_diffuse0, light_diffuse1, light_diffuse2, light_diffuse3);
-  vec4 specs[4] = vec4[4](light_specular0, light_specular1, light_specular2, light_specular3);
   for (int k = 0; k < 4; k++) {
-    vec3 L = dirs[k].xyz;
-    float w = diffs[k].a;  /* wrap: how soft the light is */
+    vec3 L = view.light_dir[k].xyz;
+    float w = view.light_diffuse[k].a;  /* wrap: how soft the light is */
     float nl = dot(L, N);
-    diff_light += clamp((nl + w) / ((1.0 + w) * (1.0 + w)), 0.0, 1.0) * diffs[k].rgb;
+    diff_light += clamp((nl + w) / ((1.0 + w) * (1.0 + w)), 0.0, 1.0) * view.light_diffuse[k].rgb;
     if (spec_on) {
       float shininess = exp2(10.0 * (1.0 - rough) * (1.0 - w) + 1.0);
       float blinn = pow(clamp(dot(normalize(L + I), N), 0.0, 1.0), shininess) * clamp(nl, 0.0, 1.0) *
                     (shininess * 0.125 + 1.0);
       float we = mix(w, 1.0, rough);
       float env = clamp((dot(L, R) + we) / ((1.0 + we) * (1.0 + we)), 0.0, 1.0);
-      spec_light += mix(blinn, env, w * w) * specs[k].rgb;
+      spec_light += mix(blinn, env, w * w) * view.light_specular[k].rgb;
     }
   }
   if (spec_on) {
@@ -336,7 +350,7 @@ void main()
     spec_col = mix(spec_col, vec3(1.0), fresnel);
   }
   vec3 color = diff_light * diff_col * (1.0 - dot(spec_col, vec3(1.0 / 3.0))) + spec_light * spec_col;
-  FragColor = vec4(color, base_color.a);
+  FragColor = vec4(color, view.base_color.a);
 }
 """
 
@@ -353,15 +367,10 @@ def _build_shader():
     info.sampler(0, "FLOAT_2D", "nodes_tx")
     info.sampler(1, "FLOAT_2D", "cells_tx")
     info.push_constant("MAT4", "mvp")
-    info.push_constant("MAT4", "model_view")
-    info.push_constant("MAT3", "normal_matrix")
     info.push_constant("FLOAT", "cell_size")
     info.push_constant("INT", "tex_width")
-    for name in ("base_color", "material", "mode", "ambient"):
-        info.push_constant("VEC4", name)
-    for k in range(4):
-        for name in ("light_dir", "light_diffuse", "light_specular"):
-            info.push_constant("VEC4", "%s%d" % (name, k))
+    info.typedef_source(_TYPEDEFS)
+    info.uniform_buf(0, "LarapView", "view")
     info.fragment_out(0, "VEC4", "FragColor")
     info.vertex_source(_VERTEX)
     info.fragment_source(_FRAGMENT)
@@ -430,6 +439,21 @@ def _lighting(obj, shading):
     return out
 
 
+def _view_block(values):
+    """The LarapView uniform block as float32 bytes (std140: mat4 column-major, then vec4s)."""
+    parts = []
+    for name in _VIEW_FIELDS:
+        v = values[name]
+        if name in ("model_view", "normal_matrix"):
+            parts.append(np.array(v, dtype=np.float32).T.reshape(-1))  # column-major
+        else:
+            parts.append(np.array(v, dtype=np.float32))
+    for name in ("light_dir", "light_diffuse", "light_specular"):
+        for k in range(4):
+            parts.append(np.array(values["%s%d" % (name, k)], dtype=np.float32))
+    return np.concatenate(parts).tobytes()
+
+
 # ----------------------------------------------------------------------------------------------
 # Drawing
 
@@ -479,15 +503,16 @@ def draw():
         mw = obj.matrix_world
         mv = rv3d.view_matrix @ mw
         shading = space.shading
+        values = _lighting(obj, shading)
+        values["model_view"] = mv
+        values["normal_matrix"] = mv.to_3x3().inverted_safe().transposed().to_4x4()
+        values["mode"] = (1.0 if g.smooth else 0.0, 1.0 if rv3d.is_perspective else 0.0, 0.0, 0.0)
+        block = gpu.types.GPUUniformBuf(_view_block(values))
         shader.bind()
         shader.uniform_float("mvp", rv3d.perspective_matrix @ mw)
-        shader.uniform_float("model_view", mv)
-        shader.uniform_float("normal_matrix", mv.to_3x3().inverted_safe().transposed())
         shader.uniform_float("cell_size", g.cell_size)
         shader.uniform_int("tex_width", TEX_WIDTH)
-        shader.uniform_float("mode", (1.0 if g.smooth else 0.0, 1.0 if rv3d.is_perspective else 0.0, 0.0, 0.0))
-        for name, value in _lighting(obj, shading).items():
-            shader.uniform_float(name, value)
+        shader.uniform_block("view", block)
         shader.uniform_sampler("nodes_tx", g.nodes_tex)
         shader.uniform_sampler("cells_tx", g.cells_tex)
         xray = shading.show_xray

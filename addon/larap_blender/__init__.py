@@ -10,7 +10,9 @@ Registration only. The add-on's rooms, each one concept (imports point down this
 * ``runtime.py``: the runtime-only engine cache and what each engine was told.
 * ``transaction.py``: all or nothing (snapshot, restore on error); ``progress.py``: Blender's
   progress indicator and the whole time of a long operation.
-* ``solving.py``: one solve, targets -> engine -> pose key; ``session.py``: dragging a handle.
+* ``preview.py``: the GPU preview (the posed mesh drawn from the lattice while posing).
+* ``solving.py``: one solve, targets -> engine -> pose key (or lattice only, for the preview);
+  ``catchup.py``: when the mesh data catches up with the preview; ``session.py``: dragging a handle.
 * ``handlers.py``: live mode and the app handlers; ``core.py``: bind/unbind, handles, bake, apply
   (and the names scripts use); ``farm.py``: Load Farm Bake (a farm's PC2 cache played by Mesh Cache).
 * ``props.py`` settings, ``operators.py`` and ``modal.py`` operators, ``ui.py`` panels and menus,
@@ -31,14 +33,14 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
     for _mod in _MODULES:  # noqa: F821 (set by the first load)
         importlib.reload(_mod)
 else:
-    from . import (engine, props, errors, progress, mesh_data, targets, runtime, transaction, solving, session,
-                   handlers, core, operators, modal, farm, ui, overlay)
+    from . import (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
+                   catchup, session, handlers, core, operators, modal, farm, ui, overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
-_MODULES = (engine, props, errors, progress, mesh_data, targets, runtime, transaction, solving, session,
-            handlers, core, operators, modal, farm, ui, overlay)
+_MODULES = (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
+            catchup, session, handlers, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)
 
@@ -52,11 +54,13 @@ def register():
     ui.register_menus()
     handlers.register()
     overlay.register()
+    preview.register()
     if engine.load() is None:
         print("LARAP:", engine.error())
 
 
 def unregister():
+    preview.unregister()
     overlay.unregister()
     handlers.unregister()
     ui.unregister_menus()

@@ -17,6 +17,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from . import preview
 from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, check_object, engine_errors
 from .handlers import live_suspended, live_update, suspend_live
 from .mesh_data import (apply_offsets, ensure_pose_key, key_positions, remove_pose_key, rest_positions,
@@ -177,6 +178,7 @@ def unbind(obj):
     key is left) and forget the engine. Handles, their vertex groups and targets, other shape keys,
     modifiers and every other object are kept."""
     check_object(obj)
+    preview.stop(obj)
     remove_pose_key(obj)
     obj.larap.bound = False
     drop_runtime(obj)

@@ -3,18 +3,27 @@
 
 Live: when a handle target moves (G/R/S, drivers, constraints, animation), the meshes it drives
 solve again with the interactive weights (:func:`live_update`, from ``depsgraph_update_post`` and
-``frame_change_post``). :func:`suspend_live` holds it off while LARAP itself steps frames or
-writes (bake). The other handlers keep the runtime cache true to the file: ``load_post`` drops it,
-``undo_post``/``redo_post`` make it re-validate (runtime.after_undo).
+``frame_change_post``): with the preview (preview.py), only the lattice is posed and drawn, and
+the mesh data catches up once the moves pause (catchup.py); without it, the pose key is written
+at each move (and converged once they pause). A mesh being dragged (session.py) is left to its
+drag: each drag step solves once. While a render job runs, a frame change writes the final pose
+directly. :func:`suspend_live` holds Live off while LARAP itself steps frames or writes (bake).
+
+The other handlers keep the runtime cache and the mesh data true to the file: ``load_post``
+drops the cache, ``undo_post``/``redo_post`` make it re-validate (runtime.after_undo); both end
+any preview and catch up live meshes restored behind their targets; ``save_pre``,
+``render_init``/``render_pre`` and ``object_bake_pre`` catch up first.
 """
 import contextlib
 
 import bpy
 from bpy.app.handlers import persistent
 
+from . import catchup, preview
 from .errors import LarapError
 from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
-from .solving import solve
+from .session import dragging
+from .solving import key_up_to_date, solve
 from .targets import handle_problems, target_names, target_signature
 
 _SUSPEND = [0]
@@ -33,12 +42,43 @@ def live_suspended():
     return _SUSPEND[0] > 0
 
 
+def rendering():
+    """A render job runs (F12, animation render): frames must hold their final pose."""
+    is_job_running = getattr(bpy.app, "is_job_running", None)  # Blender 3.3+
+    try:
+        return bool(is_job_running and is_job_running("RENDER"))
+    except (TypeError, ValueError):
+        return False
+
+
+def _live_solve(obj, rt, sig, render):
+    """One live step for ``obj`` whose targets moved; returns whether the engine solved."""
+    if (rt is None or rt.target_sig is None) and not (rt is not None and rt.needs_catchup) \
+            and key_up_to_date(obj):
+        # First look after a load, an undo or a cancel: the pose key already holds the pose of
+        # these targets (moving nothing changes nothing).
+        runtime_or_placeholder(obj).target_sig = sig
+        return False
+    if render:
+        solve(obj, weights="final", validate="fast")
+        return True
+    if not preview.blocker(obj):
+        solve(obj, weights="interactive", validate="fast", lattice_only=True)
+        if not preview.show(obj):  # cannot hide it here: write what the preview would have shown
+            solve(obj, weights="interactive", validate="fast")
+    else:
+        solve(obj, weights="interactive", validate="fast")
+    catchup.request(obj)
+    return True
+
+
 def live_update(scene, updated_names=None):
     """Re-solve every live, bound mesh of ``scene`` whose targets moved. ``updated_names``: the
     objects the depsgraph reported (None: check all). Never raises; errors land in rt.last_error."""
     if live_suspended():
         return 0
     solved = 0
+    render = rendering()
     with suspend_live():
         for obj in list(scene.objects):
             try:
@@ -50,13 +90,15 @@ def live_update(scene, updated_names=None):
             if updated_names is not None and not (targets & updated_names):
                 continue
             rt = runtime(obj)
-            if rt is not None and rt.target_sig is not None and rt.target_sig == target_signature(obj):
+            sig = target_signature(obj)
+            if rt is not None and rt.target_sig is not None and rt.target_sig == sig:
+                continue
+            if dragging(obj):  # the drag solves each of its steps itself
                 continue
             try:
                 if obj.mode == "EDIT":
                     continue
-                solve(obj, weights="interactive", validate="fast")
-                solved += 1
+                solved += _live_solve(obj, rt, sig, render)
             except Exception as exc:  # a handler must never raise; LarapError is the expected kind
                 msg = str(exc) if isinstance(exc, LarapError) else "internal error: %s: %s" % (
                     type(exc).__name__, exc)
@@ -107,17 +149,33 @@ def larap_frame_change_post(scene, depsgraph=None):
 
 
 @persistent
+def larap_load_pre(*_args):
+    """Another file replaces this one: no preview or pending catch-up carries over."""
+    catchup.cancel_timer()
+    preview.reset_all()
+
+
+@persistent
 def larap_load_post(*_args):
-    """A new file: pointers and data changed; engines are rebuilt lazily from the stored settings."""
+    """A new file: pointers and data changed; engines are rebuilt lazily from the stored settings.
+    Objects saved hidden behind a preview (an autosave) are shown again, and live meshes whose
+    pose key was saved behind their targets catch up; an up-to-date file is left as it is."""
     drop_runtime()
+    preview.reset_all()
+    catchup.after_load()
 
 
 @persistent
 def larap_undo_post(*_args):
     """Undo/redo replaced the mesh, keys, settings and targets with a stored state: the cached
-    engines re-validate, forget their warm start, and Live does not overwrite the restored pose."""
+    engines re-validate and forget their warm start; objects stored hidden behind a preview are
+    shown again; live meshes whose restored pose key is behind their restored targets catch up
+    (the same targets give the same pose, so undo shows the caught-up pose)."""
     after_undo()
     refresh_warnings_after_undo()
+    preview.reset_all()
+    with suspend_live():
+        catchup.after_restore()
 
 
 def refresh_warnings_after_undo():
@@ -138,12 +196,24 @@ def refresh_warnings_after_undo():
             continue
 
 
+@persistent
+def larap_catch_up(*_args):
+    """save_pre, render_init/render_pre, object_bake_pre: the mesh data holds the pose first."""
+    with suspend_live():
+        catchup.catch_up_all()
+
+
 _HANDLERS = (
     ("depsgraph_update_post", larap_depsgraph_update_post),
     ("frame_change_post", larap_frame_change_post),
+    ("load_pre", larap_load_pre),
     ("load_post", larap_load_post),
     ("undo_post", larap_undo_post),
     ("redo_post", larap_undo_post),
+    ("save_pre", larap_catch_up),
+    ("render_init", larap_catch_up),
+    ("render_pre", larap_catch_up),
+    ("object_bake_pre", larap_catch_up),
 )
 
 
@@ -163,5 +233,6 @@ def register():
 
 
 def unregister():
+    catchup.cancel_timer()
     for attr, func in _HANDLERS:
         _remove_ours(getattr(bpy.app.handlers, attr), func)

@@ -36,6 +36,15 @@ def _retarget(self, context):
     targets.on_target_changed(self)
 
 
+def _write_when_off(prop):
+    """Live or Preview turned off: the mesh data catches up with what was shown (catchup.py)."""
+    def update(self, context):
+        if not getattr(self, prop):
+            from . import catchup
+            catchup.setting_turned_off(self.id_data)
+    return update
+
+
 def _poll_target(self, obj):
     # Any object may drive a handle (Empties and armatures are the usual ones), but not the mesh itself.
     return obj != self.id_data
@@ -94,7 +103,7 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                             description="Refinement steps per update while dragging and in Live mode (more: closer "
                             "to the final shape, slower). Solve refines until the shape settles")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="DEFAULT")
-    live: BoolProperty(name="Live", default=False,
+    live: BoolProperty(name="Live", default=False, update=_write_when_off("live"),
                        description="Pose the mesh whenever a handle's target moves (G/R/S on the Empties, "
                        "bones, animation playback)")
     show_overlay: BoolProperty(name="Show Lattice", default=False, update=_redraw,
@@ -120,6 +129,10 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                                    "writes or removes a key it did not create)")
     runtime_id: StringProperty(default="", description="Identifies the object's runtime engine cache (stable "
                                "across renames, undo and reloads)")
+    preview: BoolProperty(name="Preview", default=True, update=_write_when_off("preview"),
+                          description="While posing (drag, Live, playback) draw the posed mesh on the GPU from the "
+                          "lattice and write the mesh once the moves pause (ignored in background mode; meshes "
+                          "with modifiers or mixed shape keys are written at each move instead)")
 
 
 class LARAP_AddonPreferences(bpy.types.AddonPreferences):

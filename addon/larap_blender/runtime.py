@@ -43,6 +43,13 @@ class Runtime:
         self.warnings = []
         self.validated = False  # False: the next ensure_runtime does a full validation
         self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
+        # Preview and catch-up (preview.py, catchup.py): the lattice of the last interactive pose,
+        # whether the pose key is behind what is shown, when the targets last moved, and how
+        # many times the engine solved (tests count them).
+        self.lattice_nodes = None
+        self.needs_catchup = False
+        self.last_move = 0.0
+        self.engine_calls = 0
         # What the engine holds (None: unknown, set it again before the next solve).
         self.engine_handles = None
         self.engine_weights = None
@@ -162,6 +169,8 @@ def after_undo():
         rt.membership_sig = None
         rt.lattice_current = False
         rt.weights = ""
+        rt.needs_catchup = False
+        rt.lattice_nodes = None
         rt.pose_version += 1
         if rt.deformer is not None:
             try:

@@ -2,20 +2,43 @@
 """Interactive posing: pick a handle and drag it (the modal operator in modal.py drives a
 :class:`PoseSession`; tests drive it directly).
 
-A session moves the handle's target about the handle's current centre, solves with the
-interactive weights at each step (the target matrix passed as an override, so the solve does not
-wait for the depsgraph), solves with the final weights on confirm, and on cancel restores the
-pose key and the target's transform bit-exactly. :func:`handle_points` gives the handle vertices
-in the current pose, for picking and for the overlay.
+A session moves the handle's target about the handle's current centre and solves once per step
+with the interactive weights (the target matrix passed as an override, so the solve does not wait
+for the depsgraph; Live leaves a mesh being dragged alone, see :func:`dragging`). With the
+preview (preview.py) a step poses only the lattice and the preview draws it; without it, the
+pose key is written. Confirm evaluates the moved target and writes the final pose of it (one
+pose per set of targets, as Live's catch-up would); cancel restores the pose key, the target's
+transform and what the pose key was recorded as, bit-exactly, and nothing solves again.
+:func:`handle_points` gives the handle vertices in the current pose, for picking and the overlay.
 """
+import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from . import catchup, preview
 from .errors import LarapError, check_object
 from .mesh_data import key_positions, restore_pose_key
 from .runtime import ensure_runtime, runtime
-from .solving import solve
-from .targets import membership, target_alive, target_matrix
+from .solving import set_stored_signature, solve, stored_signature
+from .targets import membership, target_alive, target_matrix, target_signature
+
+_DRAGGING = set()  # runtime ids of meshes with an active PoseSession
+
+
+def dragging(obj):
+    """A PoseSession drags a handle of ``obj`` (Live leaves it to the drag)."""
+    try:
+        return obj.larap.runtime_id in _DRAGGING
+    except ReferenceError:
+        return False
+
+
+def _evaluate_targets():
+    """Evaluate the scene with Live held off, so the targets' matrices read back as the
+    depsgraph computes them (the pose is then recorded for the targets as they will stay)."""
+    from .handlers import suspend_live
+    with suspend_live():
+        bpy.context.view_layer.update()
 
 
 def handle_points(obj, refresh=True):
@@ -97,6 +120,10 @@ class PoseSession:
         if self.bone and (self.target.type != "ARMATURE" or self.bone not in self.target.pose.bones):
             raise LarapError("Bone %r not found in %r" % (self.bone, self.target.name))
         rt = ensure_runtime(obj, "full")
+        catchup.catch_up(obj)  # start from the mesh holding what is shown
+        rt = ensure_runtime(obj, "fast")
+        self.stored = stored_signature(obj)
+        self.wrote = False
         self.key_existed = bool(obj.data.shape_keys and obj.data.shape_keys.key_blocks.get(s.shape_key))
         self.snapshot = key_positions(obj, s.shape_key) if self.key_existed else None
         self.transform = _transform_snapshot(self.target, self.bone)
@@ -108,6 +135,8 @@ class PoseSession:
         centre = posed[idx].astype(np.float64).mean(axis=0)
         self.pivot = obj.matrix_world @ Vector(centre)
         self.overrides_key = (self.target.name_full, self.bone)
+        self.key = obj.larap.runtime_id
+        _DRAGGING.add(self.key)
         self.active = True
         return self
 
@@ -135,29 +164,53 @@ class PoseSession:
         world = self.delta_matrix(translation, rotation, scale) @ self.start_matrix
         self.set_target_matrix(world)
         self.world = world
-        self.last = solve(self.obj, weights=weights, validate="fast", overrides={self.overrides_key: world})
+        overrides = {self.overrides_key: world}
+        obj = self.obj
+        if weights == "interactive" and not preview.blocker(obj):
+            self.last = solve(obj, weights=weights, validate="fast", overrides=overrides, lattice_only=True)
+            if preview.show(obj):
+                return self.last
+        self.wrote = True
+        self.last = solve(obj, weights=weights, validate="fast", overrides=overrides)
         return self.last
 
+    def _end(self):
+        _DRAGGING.discard(self.key)
+        self.active = False
+
     def confirm(self):
+        """Write the final pose of the targets where the drag left them (evaluated first, so
+        Live and the recorded signature see the same matrices: nothing solves again later)."""
         if not self.active:
             return self.last
-        overrides = {self.overrides_key: self.world} if hasattr(self, "world") else None
-        self.last = solve(self.obj, weights="final", validate="fast", overrides=overrides)
-        rt = runtime(self.obj)
-        if rt is not None:
-            rt.target_sig = None
-        self.active = False
+        try:
+            _evaluate_targets()
+            self.last = solve(self.obj, weights="final", validate="fast")
+        finally:
+            self._end()
         return self.last
 
     def cancel(self):
+        """Bit-exact restore of the pose key, the target and the pose key's record; the preview
+        ends and nothing solves (Live sees the targets it last saw)."""
         if not self.active:
             return
         obj = self.obj
-        _transform_restore(self.target, self.bone, self.transform)
-        restore_pose_key(obj, self.snapshot)
-        rt = runtime(obj)
-        if rt is not None:
-            rt.target_sig = None
-            rt.lattice_current = False
-            rt.pose_version += 1
-        self.active = False
+        try:
+            _transform_restore(self.target, self.bone, self.transform)
+            if self.wrote:
+                restore_pose_key(obj, self.snapshot)
+            set_stored_signature(obj, self.stored)
+            preview.stop(obj)
+            _evaluate_targets()
+            rt = runtime(obj)
+            if rt is not None:
+                rt.needs_catchup = False
+                rt.lattice_nodes = None
+                rt.lattice_current = False
+                rt.pose_version += 1
+                rt.target_sig = target_signature(obj)
+                if rt.deformer is not None:
+                    rt.deformer.reset()
+        finally:
+            self._end()

@@ -5,17 +5,66 @@ At each pose: :func:`targets.gather` gives the handle ids and where they should 
 gives the engine only what changed (handles, weights, gamma); the engine solves into the
 runtime's float32 buffer ``rt.out``; :func:`mesh_data.write_pose` copies it into the pose key
 with one ``foreach_set``. :func:`current_pose` is the pose Bake and Apply use.
+
+One pose per set of targets: a final solve forgets the engine's warm start first
+(``Deformer.reset``) and iterates to convergence, so the pose it writes depends only on the
+targets and the settings, never on the drag or live history (the engine is deterministic). It
+records what it was solved from in the object (:func:`pose_signature`, stored in the object's ID
+property ``POSE_SIGNATURE_PROP``, which travels with undo steps and the .blend): Bake, Apply, undo,
+reload and Live compare it with the current targets to know whether the pose key is up to date.
+
+An interactive solve with ``lattice_only`` poses only the lattice (``Deformer.pose_lattice``) for
+the GPU preview (preview.py); the mesh is written later by the catch-up (catchup.py).
 """
+import hashlib
 import time
 
 import numpy as np
 
+from . import preview
 from .errors import check_object, engine_errors
 from .mesh_data import key_positions, write_pose
 from .runtime import ensure_runtime, runtime
 from .targets import gather, target_signature
 
 FINAL_TOLERANCE = 1e-5  # relative energy decrease at which a final solve stops
+POSE_SIGNATURE_PROP = "_larap_pose"  # ID property: pose_signature() of the targets the pose key holds
+INTERACTIVE = "interactive"  # ... or this: the pose key holds an interactive (unconverged) pose
+
+
+def pose_signature(obj):
+    """A digest of everything a final pose depends on besides the rest shape: the target matrices
+    (and the object's), the handles, the final weights, gamma, the iterations and the lattice
+    settings. Equal signatures give bit-identical final poses."""
+    s = obj.larap
+    h = hashlib.blake2b(digest_size=16)
+    h.update(repr(target_signature(obj)).encode())
+    h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix))
+                   for x in s.handles]).encode())
+    h.update(repr((s.weights_final, float(s.gamma), int(s.iterations), s.resolution_mode, int(s.cells),
+                   float(s.cell_size), s.bind_topology, s.shape_key)).encode())
+    return h.hexdigest()
+
+
+def stored_signature(obj):
+    """The pose_signature() the pose key was last solved for with the final weights ("" unknown)."""
+    try:
+        return str(obj.get(POSE_SIGNATURE_PROP, ""))
+    except (ReferenceError, TypeError):
+        return ""
+
+
+def set_stored_signature(obj, value):
+    if value:
+        obj[POSE_SIGNATURE_PROP] = value
+    elif POSE_SIGNATURE_PROP in obj:
+        del obj[POSE_SIGNATURE_PROP]
+
+
+def key_up_to_date(obj):
+    """The pose key holds the converged final pose of the current targets."""
+    stored = stored_signature(obj)
+    return bool(stored) and stored == pose_signature(obj)
 
 
 class SolveResult:
@@ -33,13 +82,20 @@ def _weights_name(s, which):
     return s.weights_final if which == "final" else s.weights_interactive
 
 
-def solve(obj, *, weights="final", validate="full", overrides=None, write=True, tol=None, max_iterations=None):
+def solve(obj, *, weights="final", validate="full", overrides=None, write=True, lattice_only=False, tol=None,
+          max_iterations=None, from_rest=True):
     """One solve from the current target transforms; writes the pose key. Returns SolveResult.
 
     ``weights``: "final", "interactive" or a weights name; ``validate``: see ensure_runtime;
-    ``overrides``: {(target name, bone): world matrix} (a drag in progress). A final solve
-    iterates until the energy changes by less than ``tol`` (default FINAL_TOLERANCE) relative,
-    at most ``max_iterations`` times (default max(30, 10 x the object's iterations))."""
+    ``overrides``: {(target name, bone): world matrix} (a drag in progress); ``lattice_only``
+    (interactive): pose the lattice only, into ``rt.lattice_nodes``, and write nothing (the
+    preview draws it; the pose key is then behind: ``rt.needs_catchup``).
+
+    A final solve starts from rest (reset; ``from_rest=False``: from the engine's last pose, for
+    a farm chunk's later frames), converges until the energy changes by less than ``tol``
+    (default FINAL_TOLERANCE) relative in at most ``max_iterations`` flip-flops (default
+    max(30, 10 x the object's iterations)), writes the pose key, records pose_signature() in the
+    object, and ends the object's preview (the mesh now holds the pose)."""
     check_object(obj, need_bound=True)
     s = obj.larap
     t0 = time.perf_counter()
@@ -47,27 +103,43 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     d = rt.deformer
     idx, tgt, warnings = gather(obj, rt, overrides)
     wname = _weights_name(s, weights)
+    final = weights == "final"
+    lattice_only = lattice_only and not final and len(idx) > 0
     engine_ms = 0.0
     with engine_errors("Solve failed"):
         if len(idx) == 0:
             warnings.append("no usable handles: rest pose written")
             np.copyto(rt.out, rt.rest)
+            rt.lattice_nodes = None
         else:
             rt.set_engine_state(idx, wname, float(s.gamma))
-            if weights == "final":
-                # The final pose converges (up to 10x the interactive iterations), so solving
-                # again from the same targets gives the same pose.
+            if final:
+                # One pose per set of targets: from rest, to convergence (up to 10x the
+                # interactive iterations), so the same targets always give the same pose.
+                if from_rest:
+                    d.reset()
                 cap = max(30, 10 * int(s.iterations)) if max_iterations is None else int(max_iterations)
                 d.solve(tgt, cap, out=rt.out, tol=FINAL_TOLERANCE if tol is None else float(tol))
+                rt.lattice_nodes = None
+            elif lattice_only:
+                rt.lattice_nodes = np.asarray(d.pose_lattice(tgt, int(s.iterations)), dtype=np.float32)
             else:
                 d.solve(tgt, int(s.iterations), out=rt.out)
+                rt.lattice_nodes = None
             stats = dict(d.stats)
             rt.stats = stats
             engine_ms = float(stats.get("ms_total", 0.0))
+    rt.engine_calls += 1
     rt.weights = wname
     rt.lattice_current = True
-    if write:
+    if lattice_only:
+        rt.needs_catchup = True
+    elif write:
         write_pose(obj, rt.out)
+        rt.needs_catchup = not final
+        # An interactive pose is recorded as such: a final pose of no targets (catch up on reload).
+        set_stored_signature(obj, pose_signature(obj) if final and from_rest and not overrides else INTERACTIVE)
+        preview.stop(obj)  # the mesh holds the pose now: Blender draws it again
     rt.pose_version += 1
     rt.last_ms = (time.perf_counter() - t0) * 1e3
     rt.last_error = ""
@@ -77,15 +149,15 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
 
 
 def current_pose(obj):
-    """The pose to bake/apply: the pose key as it is when it is up to date (solved with the final
-    weights from the current target transforms, so what you see is what you get), else a new solve
-    with the final weights. Returns (n,3) float32."""
+    """The pose to bake/apply: the pose key as it is when it holds the final pose of the current
+    targets (key_up_to_date: what the artist sees once the moves pause), else the final solve of
+    the current targets, written first (the catch-up), so Bake and Apply change nothing visible.
+    Returns (n,3) float32."""
     check_object(obj, need_bound=True)
     s = obj.larap
     rt = ensure_runtime(obj, "full")
     posed = key_positions(obj, s.shape_key)
-    if (posed is not None and rt.target_sig is not None and rt.weights == s.weights_final
-            and rt.target_sig == target_signature(obj)):
+    if posed is not None and not rt.needs_catchup and key_up_to_date(obj):
         return posed
     solve(obj, weights="final", validate="fast")
     return runtime(obj).out.copy()

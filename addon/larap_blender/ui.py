@@ -109,6 +109,17 @@ def _pose_key(layout, obj, context=None):
         layout.prop(kb, "value", text="%s Key" % kb.name, slider=True)
 
 
+def _preview_row(layout, obj):
+    """The GPU preview toggle, and what is drawn instead of it when it cannot be used."""
+    from . import preview
+    s = obj.larap
+    row = layout.row(align=True)
+    row.prop(s, "preview", toggle=True, icon="SHADING_SOLID")
+    reason = preview.blocker(obj) if s.preview and s.bound else ""
+    if reason and reason != "background mode":
+        _label_lines(layout, "Preview off (%s): posing writes the mesh" % reason, icon="INFO")
+
+
 class LARAP_UL_handles(bpy.types.UIList):
     bl_idname = "LARAP_UL_handles"
 
@@ -163,7 +174,7 @@ def _draw_mesh(layout, context, obj):
     _op(row, "larap.solve")
     _op(row, "larap.pose")
     _pose_toggles(layout, s)
-    # (issue 11: the "Preview" row goes here, under Live and Lattice)
+    _preview_row(layout, obj)
     _pose_key(layout, obj, context)
     col = layout.column(align=True)
     _op(col, "larap.back_to_rest")

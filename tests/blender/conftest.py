@@ -16,7 +16,8 @@ REPO_ADDON = os.path.realpath(os.path.join(os.path.dirname(os.path.abspath(__fil
 def _our_handlers():
     found = []
     for attr in ("depsgraph_update_post", "frame_change_post", "load_post", "undo_post", "redo_post",
-                 "undo_pre", "redo_pre", "save_pre", "save_post", "load_pre"):
+                 "undo_pre", "redo_pre", "save_pre", "save_post", "load_pre", "render_init", "render_pre",
+                 "object_bake_pre"):
         for h in getattr(bpy.app.handlers, attr):
             if getattr(h, "__module__", "").startswith(ADDON):
                 found.append((attr, h.__name__))

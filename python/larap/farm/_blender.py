@@ -44,8 +44,10 @@ def find_objects(names):
     return [bpy.data.objects[n] for n in names]
 
 
-def final_solve(core, obj, tol=None, max_iterations=None):
-    """The add-on's final solve of ``obj`` at this frame, to ``tol`` (relative energy change) in at
-    most ``max_iterations`` flip-flops (None: the add-on's defaults); the pose stays in
+def final_solve(core, obj, tol=None, max_iterations=None, from_rest=True):
+    """The add-on's final solve of ``obj`` at this frame, from rest (or, ``from_rest=False``,
+    warm-started from the previous frame's pose), to ``tol`` (relative energy change) in at most
+    ``max_iterations`` flip-flops (None: the add-on's defaults); the pose stays in
     core.runtime(obj).out (nothing is written to the file)."""
-    return core.solve(obj, weights="final", validate="fast", write=False, tol=tol, max_iterations=max_iterations)
+    return core.solve(obj, weights="final", validate="fast", write=False, tol=tol, max_iterations=max_iterations,
+                      from_rest=from_rest)

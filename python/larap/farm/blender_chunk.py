@@ -73,12 +73,11 @@ def bake_chunk(core, scene, objs, job, chunk):
             for obj in objs:
                 rt = core.runtime(obj)
                 if job.mode == "rest" or f == chunk.solve_start:
-                    rt.deformer.reset()
                     result = final_solve(core, obj, job.tol, job.max_iterations)
                 elif job.warm_tol is not None:
-                    result = final_solve(core, obj, job.warm_tol, job.max_iterations)
+                    result = final_solve(core, obj, job.warm_tol, job.max_iterations, from_rest=False)
                 else:
-                    result = final_solve(core, obj)
+                    result = final_solve(core, obj, from_rest=False)
                 for w in result.warnings:
                     if w not in warned:
                         warned.add(w)

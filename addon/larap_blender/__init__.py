@@ -1,8 +1,19 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """LARAP: as-rigid-as-possible mesh posing through a volumetric lattice (Blender add-on).
 
-Registration only; the work is in core.py (plain functions), the UI in ui.py, settings in
-props.py, operators in operators.py, the overlay in overlay.py and app handlers in handlers.py.
+Registration only. The add-on's rooms, each one concept (imports point down this list):
+
+* ``engine.py``: finds and imports the compiled ``larap`` engine; ``errors.py``: LarapError,
+  object checks, engine exceptions translated once.
+* ``mesh_data.py``: the only writer of vertex positions and shape keys (numpy buffers).
+* ``targets.py``: handle targets (rest matrices, where handle vertices go, signatures).
+* ``runtime.py``: the runtime-only engine cache and what each engine was told.
+* ``transaction.py``: all or nothing (snapshot, restore on error).
+* ``solving.py``: one solve, targets -> engine -> pose key; ``session.py``: dragging a handle.
+* ``handlers.py``: live mode and the app handlers; ``core.py``: bind/unbind, handles, bake, apply
+  (and the names scripts use).
+* ``props.py`` settings, ``operators.py`` and ``modal.py`` operators, ``ui.py`` panels and menus,
+  ``overlay.py`` the 3D View drawing.
 """
 bl_info = {
     "name": "LARAP Deform",
@@ -14,17 +25,24 @@ bl_info = {
     "category": "Mesh",
 }
 
-if "bpy" in locals():
+if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after what it imports
     import importlib
-    for _mod in (engine, props, core, operators, ui, overlay, handlers):  # noqa: F821
+    for _mod in _MODULES:  # noqa: F821 (set by the first load)
         importlib.reload(_mod)
 else:
-    from . import engine, props, core, operators, ui, overlay, handlers
+    from . import (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
+                   handlers, core, operators, modal, ui, overlay)
 
 import bpy
 
+# Every module of the add-on, each after the modules it imports (the reload order).
+_MODULES = (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
+            handlers, core, operators, modal, ui, overlay)
+# Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
+_CLASS_MODULES = (props, operators, modal, ui)
+
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(
-    props.classes + operators.classes + ui.classes)
+    tuple(cls for mod in _CLASS_MODULES for cls in mod.classes))
 
 
 def register():
@@ -43,4 +61,4 @@ def unregister():
     ui.unregister_menus()
     props.unregister_properties()
     _unregister_classes()
-    core.drop_runtime()
+    runtime.drop_runtime()

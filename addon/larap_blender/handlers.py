@@ -1,9 +1,78 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Application handlers: live re-solve when a handle target moves, cache reset on file load."""
+"""Live mode and the application handlers.
+
+Live: when a handle target moves (G/R/S, drivers, constraints, animation), the meshes it drives
+solve again with the interactive weights (:func:`live_update`, from ``depsgraph_update_post`` and
+``frame_change_post``). :func:`suspend_live` holds it off while LARAP itself steps frames or
+writes (bake). The other handlers keep the runtime cache true to the file: ``load_post`` drops it,
+``undo_post``/``redo_post`` make it re-validate (runtime.after_undo).
+"""
+import contextlib
+
 import bpy
 from bpy.app.handlers import persistent
 
-from . import core
+from .errors import LarapError
+from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
+from .solving import solve
+from .targets import target_names, target_signature
+
+_SUSPEND = [0]
+
+
+@contextlib.contextmanager
+def suspend_live():
+    _SUSPEND[0] += 1
+    try:
+        yield
+    finally:
+        _SUSPEND[0] -= 1
+
+
+def live_suspended():
+    return _SUSPEND[0] > 0
+
+
+def live_update(scene, updated_names=None):
+    """Re-solve every live, bound mesh of ``scene`` whose targets moved. ``updated_names``: the
+    objects the depsgraph reported (None: check all). Never raises; errors land in rt.last_error."""
+    if live_suspended():
+        return 0
+    solved = 0
+    with suspend_live():
+        for obj in list(scene.objects):
+            try:
+                if obj.type != "MESH" or not obj.larap.bound or not obj.larap.live:
+                    continue
+            except ReferenceError:
+                continue
+            targets = target_names(obj)
+            if updated_names is not None and not (targets & updated_names):
+                continue
+            rt = runtime(obj)
+            if rt is not None and rt.target_sig is not None and rt.target_sig == target_signature(obj):
+                continue
+            try:
+                if obj.mode == "EDIT":
+                    continue
+                solve(obj, weights="interactive", validate="fast")
+                solved += 1
+            except Exception as exc:  # a handler must never raise; LarapError is the expected kind
+                msg = str(exc) if isinstance(exc, LarapError) else "internal error: %s: %s" % (
+                    type(exc).__name__, exc)
+                rt = runtime_or_placeholder(obj)
+                if rt.last_error != msg:
+                    print("LARAP live update of %r: %s" % (obj.name, msg))
+                    if not isinstance(exc, LarapError):
+                        import traceback
+                        traceback.print_exc()
+                rt.last_error = msg
+                try:
+                    rt.target_sig = target_signature(obj)
+                except Exception:
+                    rt.target_sig = None
+    return solved
+
 
 
 @persistent
@@ -13,7 +82,7 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
     Our own writes only tag the mesh (never a target), and live_update skips meshes whose target
     matrices did not change, so this does not recurse. Deleted objects raise ReferenceError and are
     skipped."""
-    if core.live_suspended() or depsgraph is None:
+    if live_suspended() or depsgraph is None:
         return
     updated = set()
     try:
@@ -27,27 +96,27 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
     except ReferenceError:
         return
     if updated:
-        core.live_update(scene, updated)
+        live_update(scene, updated)
 
 
 @persistent
 def larap_frame_change_post(scene, depsgraph=None):
     """Animated targets: depsgraph_update_post does not fire on frame changes."""
-    if not core.live_suspended():
-        core.live_update(scene, None)
+    if not live_suspended():
+        live_update(scene, None)
 
 
 @persistent
 def larap_load_post(*_args):
     """A new file: pointers and data changed; engines are rebuilt lazily from the stored settings."""
-    core.drop_runtime()
+    drop_runtime()
 
 
 @persistent
 def larap_undo_post(*_args):
     """Undo/redo replaced the mesh, keys, settings and targets with a stored state: the cached
     engines re-validate, forget their warm start, and Live does not overwrite the restored pose."""
-    core.after_undo()
+    after_undo()
 
 
 _HANDLERS = (

@@ -6,7 +6,7 @@ from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProp
 
 WEIGHT_ITEMS = [
     ("trilinear", "Trilinear", "Trilinear interpolation of the lattice nodes (fast, C0 across cells)"),
-    ("bspline", "B-Spline", "Cubic B-spline interpolation (smooth, a bit slower)"),
+    ("bspline", "B-Spline", "Quadratic B-spline interpolation over 27 nodes (C1 across cells, a bit slower)"),
 ]
 DEVICE_ITEMS = [
     ("DEFAULT", "Default", "Use the device set in the add-on preferences"),

@@ -202,6 +202,10 @@ void Deformer::solve(const double* targets, int iterations, float* out, double t
   impl_->solve(targets, iterations, out, tolerance);
 }
 
+void Deformer::pose(const double* targets, int iterations, double tolerance) {
+  impl_->pose_lattice(targets, iterations, tolerance);  // no handles: the lattice stays at rest
+}
+
 const float* Deformer::solve_on_device(const double* targets, int iterations, double tolerance) {
   Impl& d = *impl_;
   if (d.backend->name() == "cpu")

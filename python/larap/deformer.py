@@ -171,6 +171,14 @@ class Deformer:
                 raise ValueError("out must be C-contiguous and writeable")
         return self._core.solve(T, iterations, out, tol)
 
+    def pose_lattice(self, targets, iterations: int = 5, *, tol=None) -> np.ndarray:
+        """The same solve without the transfer to the vertices: poses the lattice only and returns
+        its (N, 3) node positions (what a preview draws from, with cell_nodes() and
+        trilinear_binding()). The next solve() warm-starts from this pose."""
+        T, iterations, tol = self._solve_args("pose_lattice", targets, iterations, tol)
+        self._core.pose(T, iterations, tol)
+        return self._core.lattice_deformed()
+
     def solve_on_device(self, targets, iterations: int = 5, *, tol=None):
         """The same solve, leaving the positions on the GPU (device="cuda" only): returns a
         DeviceArray, (n, 3) float32 in device memory owned by this Deformer and valid until its
@@ -232,6 +240,16 @@ class Deformer:
     def lattice_deformed(self) -> np.ndarray:
         """(N, 3) lattice node positions of the current pose."""
         return self._core.lattice_deformed()
+
+    def cell_nodes(self) -> np.ndarray:
+        """(C, 8) int32 corner node ids of every lattice cell; corner c = (c & 1, c >> 1 & 1, c >> 2)."""
+        return self._core.cell_nodes()
+
+    def trilinear_binding(self) -> tuple[np.ndarray, np.ndarray]:
+        """The trilinear binding as arrays, for drawing the pose on the GPU: per vertex its cell
+        (n,) int32 and its position in that cell (n, 3) float32 in [0, 1]^3. A vertex moves by
+        the trilinear blend of its cell's corner displacements (cell_nodes)."""
+        return self._core.trilinear_binding()
 
     def lattice_edges(self) -> np.ndarray:
         """(E, 2) node index pairs of the lattice edges (the ARAP neighbourhood)."""

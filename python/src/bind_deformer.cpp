@@ -162,6 +162,12 @@ void bind_deformer(py::module_& m) {
            py::arg("tolerance") = 0.0)
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0)
+      .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance) {
+             const int64_t m = static_cast<int64_t>(self.engine.handles().size());
+             require_rows3(targets.request(), "targets", m);
+             const double* t = targets.data();
+             self.locked([&](D& d) { d.pose(t, iterations, tolerance); });
+           }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0)
       .def("reset", [](PyDeformer& self) { self.locked([](D& d) { d.reset(); }); })
       .def_property(
           "weights", [](const PyDeformer& self) { return std::string(larap::weight_kind_name(self.engine.weights())); },
@@ -211,13 +217,40 @@ void bind_deformer(py::module_& m) {
         const auto& o = self.engine.lattice().origin;
         return py::make_tuple(o.x(), o.y(), o.z());
       })
+      .def("cell_nodes", [](const PyDeformer& self) {
+        const auto& cn = self.engine.lattice().cell_nodes;
+        py::array_t<int32_t> a({py::ssize_t(cn.size()), py::ssize_t(8)});
+        if (!cn.empty()) std::memcpy(a.mutable_data(), cn.data(), sizeof(int32_t) * 8 * cn.size());
+        return a;
+      })
+      .def("trilinear_binding", [](const PyDeformer& self) {
+        // The trilinear binding as arrays: per vertex its cell and its position in the cell.
+        const larap::Binding* b = nullptr;
+        larap::Binding made;
+        if (self.engine.weights() == larap::WeightKind::Trilinear) {
+          b = self.locked([](const D& e) { return &e.binding(); });
+        } else {
+          made = self.locked([](const D& e) {
+            return larap::bind_vertices(e.lattice(), e.mesh().vertices, larap::WeightKind::Trilinear);
+          });
+          b = &made;
+        }
+        const py::ssize_t n = py::ssize_t(b->base.size());
+        py::array_t<int32_t> cells(n);
+        py::array_t<float> frac({n, py::ssize_t(3)});
+        if (n) {
+          std::memcpy(cells.mutable_data(), b->base.data(), sizeof(int32_t) * n);
+          std::memcpy(frac.mutable_data(), b->frac.data(), sizeof(float) * 3 * n);
+        }
+        return py::make_tuple(cells, frac);
+      })
       .def("binding_weights", [](const PyDeformer& self, int64_t v) {
         const D& d = self.engine;
         if (v < 0 || v >= d.mesh().num_vertices()) throw larap::InvalidInput("vertex out of range");
-        const auto& b = self.locked([](const D& e) -> const larap::Binding& { return e.binding(); });
-        std::vector<int32_t> ids(b.stencil_size());
-        std::vector<double> w(b.stencil_size());
-        b.weights_of(d.lattice(), v, ids.data(), w.data());
+        const larap::Binding* b = self.locked([](const D& e) { return &e.binding(); });
+        std::vector<int32_t> ids(b->stencil_size());
+        std::vector<double> w(b->stencil_size());
+        b->weights_of(d.lattice(), v, ids.data(), w.data());
         return py::make_tuple(ids, w);
       });
   py::class_<DeviceArray>(m, "DeviceArray")

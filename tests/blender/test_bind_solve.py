@@ -336,3 +336,21 @@ def test_settings_changes_rebuild_lazily(core):
     obj.larap.gamma = 0.5  # no rebuild for gamma
     bpy.ops.larap.solve()
     assert core.runtime(obj).deformer is after and abs(after.gamma - 0.5) < 1e-6
+
+
+def test_polygons_reach_the_engine_as_blenders_own_csr(core):
+    """Quads and n-gons go to the engine as Blender's loop array (no triangulation in Python),
+    in polygon order, and the engine binds them like the same polygons given as a list."""
+    import larap
+    from larap_blender import mesh_data
+    bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=0.5, depth=2.0)  # quads + two 12-gons
+    obj = bpy.context.active_object
+    me = obj.data
+    ids, offsets = mesh_data.polygons(me)
+    expected = [list(p.vertices) for p in me.polygons]
+    assert offsets[0] == 0 and offsets[-1] == len(ids) and len(offsets) == len(expected) + 1
+    assert [list(ids[offsets[k]:offsets[k + 1]]) for k in range(len(expected))] == expected
+    rest = mesh_data.rest_positions(obj)
+    a = larap.Deformer(rest, ids, face_offsets=offsets, cells=300)
+    b = larap.Deformer(rest, expected, cells=300)
+    np.testing.assert_array_equal(a.lattice_rest(), b.lattice_rest())

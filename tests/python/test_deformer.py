@@ -280,3 +280,30 @@ def test_one_deformer_from_several_threads(tube):
         t.join()
     assert not errors
     assert all(np.isfinite(r).all() and r.shape == ref.shape for r in results)
+
+
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_trilinear_binding_arrays_reproduce_the_trilinear_solve(tube, weights):
+    """What a GPU preview evaluates (cell corners, fractions, node displacements) gives exactly
+    the trilinear pose, whichever weights the Deformer solves with."""
+    V, F = tube
+    d = larap.Deformer(V, F, cells=600, weights=weights)
+    idx = np.flatnonzero(V[:, 0] > V[:, 0].max() - 0.3)
+    d.set_handles(idx)
+    d.solve(V[idx] + [0, 0.3, 0], 5)
+    cells, frac = d.trilinear_binding()
+    corners = d.cell_nodes()[cells]                       # (n, 8)
+    disp = d.lattice_deformed() - d.lattice_rest()
+    f = frac.astype(np.float64)
+    w = np.ones((len(V), 8))
+    for c in range(8):
+        for a in range(3):
+            w[:, c] *= f[:, a] if (c >> a) & 1 else 1 - f[:, a]
+    X = V + np.einsum("nk,nkd->nd", w, disp[corners])
+    d.weights = "trilinear"
+    ref = d.solve(V[idx] + [0, 0.3, 0], 0)
+    # pose_lattice poses exactly what solve would, without touching the vertices
+    e = larap.Deformer(V, F, cells=600, weights=weights)
+    e.set_handles(idx)
+    np.testing.assert_array_equal(e.pose_lattice(V[idx] + [0, 0.3, 0], 5), d.lattice_deformed())
+    assert np.abs(X - ref).max() < 1e-5 * np.ptp(V, axis=0).max()

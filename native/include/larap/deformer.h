@@ -64,6 +64,9 @@ class Deformer {
   // an iteration lowers the energy by less than tolerance * energy (converged).
   void solve(const double* targets, int iterations, double* out, double tolerance = 0.0);
   void solve(const double* targets, int iterations, float* out, double tolerance = 0.0);
+  // The same solve without the transfer to the vertices: only the lattice is posed (read it with
+  // lattice_deformed()). For drawing the pose from the lattice (a GPU preview).
+  void pose(const double* targets, int iterations, double tolerance = 0.0);
   // The same solve, leaving the positions on the GPU: returns the device address of a #V by 3
   // float32 row-major array owned by the Deformer, valid until the next solve. Throws
   // DeviceError on the CPU backend.

@@ -1,0 +1,290 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Mesh data in and out of Blender: the ONLY place that writes vertex positions and shape keys.
+
+Everything goes through numpy with ``foreach_get``/``foreach_set`` on float32 buffers; nothing
+loops over vertices in Python. Positions are object-local, (n, 3) float32.
+
+Reads: rest positions (the Basis key, or the mesh when it has no keys), any key's positions, the
+polygon topology (its hash, and a fan triangulation for the engine), vertex-group weights and the
+selection. Writes: the pose key (``Object.larap.shape_key``, relative to Basis, created and owned
+by LARAP), other keys LARAP adds (bake), the mesh vertices (apply, undoing a created Basis) and
+the restores of a snapshot (transaction.py). With shape keys present, writing ``vertices.co`` has
+no visible effect: write the key.
+"""
+import hashlib
+
+import numpy as np
+
+from .errors import LarapError
+
+
+def _get(collection, attr, count, dtype, width=1):
+    buf = np.empty(count * width, dtype=dtype)
+    collection.foreach_get(attr, buf)
+    return buf if width == 1 else buf.reshape(count, width)
+
+
+# ----------------------------------------------------------------------------------------------
+# Positions (read)
+
+def mesh_positions(me):
+    """(n,3) float32 positions of the mesh vertices (not what the keys show)."""
+    return _get(me.vertices, "co", len(me.vertices), np.float32, 3)
+
+
+def block_positions(kb, n):
+    """(n,3) float32 positions stored in the shape key ``kb`` of an n-vertex mesh."""
+    return _get(kb.data, "co", n, np.float32, 3)
+
+
+def rest_positions(obj):
+    """(n,3) float32 rest positions: the Basis key, or the mesh vertices when there are no keys."""
+    me = obj.data
+    keys = me.shape_keys
+    if keys is not None and keys.reference_key is not None:
+        return block_positions(keys.reference_key, len(me.vertices))
+    return mesh_positions(me)
+
+
+def key_positions(obj, name):
+    """(n,3) float32 positions of the key ``name``, or None when there is no such key."""
+    me = obj.data
+    kb = me.shape_keys.key_blocks.get(name) if me.shape_keys else None
+    if kb is None:
+        return None
+    return block_positions(kb, len(me.vertices))
+
+
+def array_hash(a):
+    return hashlib.blake2b(np.ascontiguousarray(a).tobytes(), digest_size=16).hexdigest()
+
+
+# ----------------------------------------------------------------------------------------------
+# Topology (read)
+
+def topology_arrays(me):
+    """(loop_start, loop_total, loop vertex ids): Blender's polygons, as int32 arrays."""
+    totals = _get(me.polygons, "loop_total", len(me.polygons), np.int32)
+    starts = _get(me.polygons, "loop_start", len(me.polygons), np.int32)
+    verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
+    return starts, totals, verts
+
+
+def topology_hash(me, arrays=None):
+    starts, totals, verts = arrays or topology_arrays(me)
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.array([len(me.vertices), len(me.polygons), len(me.loops)], dtype=np.int64).tobytes())
+    h.update(totals.tobytes())
+    h.update(verts.tobytes())
+    return h.hexdigest()
+
+
+def polygons(me, arrays=None):
+    """Blender's polygons as the engine takes them: (vertex ids (L,), offsets (P+1,)), polygon p
+    being ids[offsets[p]:offsets[p+1]]. Blender stores each polygon's loops contiguously and in
+    polygon order, so this is its own loop array, handed over without triangulating."""
+    starts, totals, verts = arrays or topology_arrays(me)
+    offsets = np.zeros(len(totals) + 1, dtype=np.int64)
+    np.cumsum(totals, out=offsets[1:])
+    if len(starts) and not np.array_equal(starts, offsets[:-1]):  # not in order: gather it
+        idx = np.repeat(starts.astype(np.int64) - offsets[:-1], totals) + np.arange(offsets[-1])
+        verts = verts[idx]
+    return verts, offsets
+
+
+# ----------------------------------------------------------------------------------------------
+# Vertex groups and selection (read)
+
+def vertex_group_weights(obj, names):
+    """{name: (n,) float32 weights} for vertex groups, without a Python loop over vertices.
+
+    Blender exposes vertex-group membership only per vertex, so this lets Blender's shape-key
+    mixer do it in C: a temporary key = Basis + (0,0,1) masked by the group, mixed alone with
+    ``shape_key_add(from_mix=True)``, gives Basis + weight * (0,0,1). The temporary keys are
+    removed and the mesh's shape-key state is restored.
+    """
+    me = obj.data
+    n = len(me.vertices)
+    out = {}
+    names = [nm for nm in dict.fromkeys(names) if nm in obj.vertex_groups]
+    if not names or n == 0:
+        return out
+    had_keys = me.shape_keys is not None
+    active_index = obj.active_shape_key_index
+    show_only = obj.show_only_shape_key
+    if not had_keys:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    key = me.shape_keys
+    basis = key.reference_key
+    use_relative = key.use_relative
+    saved_mutes = [(kb.name, kb.mute) for kb in key.key_blocks]
+    base = block_positions(basis, n)
+    raised = base + np.array([0.0, 0.0, 1.0], dtype=np.float32)
+    try:
+        key.use_relative = True
+        obj.show_only_shape_key = False
+        for kb in key.key_blocks:
+            if kb != basis:
+                kb.mute = True
+        basis_mute = basis.mute
+        basis.mute = False
+        for name in names:
+            tmp = obj.shape_key_add(name="_larap_tmp", from_mix=False)
+            mix = None
+            try:
+                write_block(tmp, raised)
+                tmp.relative_key = basis
+                tmp.vertex_group = name
+                tmp.slider_min, tmp.slider_max = 0.0, 1.0
+                tmp.value = 1.0
+                tmp.mute = False
+                mix = obj.shape_key_add(name="_larap_mix", from_mix=True)
+                mixed = block_positions(mix, n)
+            finally:
+                if mix is not None:
+                    obj.shape_key_remove(mix)
+                obj.shape_key_remove(tmp)
+            out[name] = (mixed[:, 2] - base[:, 2]).astype(np.float32)
+        basis.mute = basis_mute
+    finally:
+        if not had_keys:
+            obj.shape_key_clear()
+        else:
+            key.use_relative = use_relative
+            for name, mute in saved_mutes:
+                kb = key.key_blocks.get(name)
+                if kb is not None:
+                    kb.mute = mute
+            obj.active_shape_key_index = active_index
+        obj.show_only_shape_key = show_only
+    return out
+
+
+def selected_vertices(obj):
+    me = obj.data
+    if obj.mode == "EDIT":
+        obj.update_from_editmode()
+    sel = _get(me.vertices, "select", len(me.vertices), bool)
+    return np.flatnonzero(sel)
+
+
+# ----------------------------------------------------------------------------------------------
+# Positions (write): every write of vertex or key positions in the add-on is one of these
+
+def write_block(kb, co):
+    """Write (n,3) positions into the shape key ``kb`` with one foreach_set (no copy when ``co``
+    is already C-contiguous float32)."""
+    buf = co if (co.dtype == np.float32 and co.flags.c_contiguous) else np.ascontiguousarray(co, dtype=np.float32)
+    kb.data.foreach_set("co", buf.reshape(-1))
+
+
+def set_mesh_positions(me, co):
+    """Write (n,3) positions into the mesh vertices (only visible when the mesh has no keys)."""
+    buf = np.ascontiguousarray(co, dtype=np.float32)
+    me.vertices.foreach_set("co", buf.reshape(-1))
+
+
+def write_key(obj, name, co):
+    """Write (n,3) positions into the key ``name`` (added when missing), relative to Basis.
+    The caller has checked that ``name`` is not the Basis or pose key."""
+    keys = obj.data.shape_keys
+    kb = keys.key_blocks.get(name)
+    if kb is None:
+        kb = obj.shape_key_add(name=name, from_mix=False)
+    write_block(kb, co)
+    kb.relative_key = keys.reference_key
+    obj.data.update_tag()
+    return kb
+
+
+def apply_offsets(obj, pose, rest, skip):
+    """Move the mesh to ``pose`` and every key but ``skip`` by ``pose - rest`` (keys keep their
+    offsets to one another)."""
+    me = obj.data
+    delta = pose - rest
+    keys = me.shape_keys
+    if keys is not None:
+        n = len(me.vertices)
+        for kb in keys.key_blocks:
+            if kb.name != skip:
+                write_block(kb, block_positions(kb, n) + delta)
+    set_mesh_positions(me, pose)
+
+
+# ----------------------------------------------------------------------------------------------
+# The pose key (LARAP creates it, owns it, and never writes a key it did not create)
+
+def ensure_pose_key(obj, settings=None):
+    """Basis (created from the mesh if there are no keys) and the pose key, relative to Basis."""
+    s = settings or obj.larap
+    me = obj.data
+    if not s.shape_key:
+        raise LarapError("The pose shape key has no name (LARAP > Settings > Shape Key)")
+    keys = me.shape_keys
+    kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
+    if kb is not None:
+        if kb == keys.reference_key:
+            raise LarapError("The pose shape key %r is the Basis key; choose another name" % s.shape_key)
+        if kb.name != s.owned_key_name:
+            if s.bound and not s.owned_key_name:
+                s.owned_key_name = kb.name  # bound by an add-on version that did not record ownership
+            else:
+                raise LarapError("%r already has a shape key %r that LARAP did not create; LARAP does not "
+                                 "overwrite it: rename that key or set another pose key name "
+                                 "(LARAP > Settings > Shape Key)" % (obj.name, s.shape_key))
+        return kb, False
+    created_basis = False
+    if me.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+        created_basis = True
+    keys = me.shape_keys
+    kb = obj.shape_key_add(name=s.shape_key, from_mix=False)
+    kb.relative_key = keys.reference_key
+    kb.value = 1.0
+    s.owned_key_name = kb.name
+    return kb, created_basis
+
+
+def write_pose(obj, co, settings=None):
+    """Write (n,3) positions into the pose key with one foreach_set and tag the mesh."""
+    kb, _ = ensure_pose_key(obj, settings)
+    write_block(kb, co)
+    obj.data.update_tag()
+    return kb
+
+
+def restore_pose_key(obj, co):
+    """Put the pose key back as it was: its positions ``co``, or no pose key when ``co`` is None."""
+    s = obj.larap
+    keys = obj.data.shape_keys
+    kb = keys.key_blocks.get(s.shape_key) if keys else None
+    if co is not None:
+        if kb is None:
+            kb, _ = ensure_pose_key(obj, s)
+        write_block(kb, co)
+    elif kb is not None:
+        obj.shape_key_remove(kb)
+    obj.data.update_tag()
+
+
+def remove_pose_key(obj):
+    """Remove only what LARAP made: its pose key, and the Basis when bind created it and no other
+    key is left (the mesh keeps the Basis positions)."""
+    s = obj.larap
+    keys = obj.data.shape_keys
+    if keys is None:
+        s.owned_key_name = ""
+        s.created_basis = False
+        return
+    owned = s.owned_key_name or (s.shape_key if s.bound else "")
+    kb = keys.key_blocks.get(owned) if owned else None
+    if kb is not None and kb != keys.reference_key:
+        obj.shape_key_remove(kb)
+    keys = obj.data.shape_keys
+    if s.created_basis and keys is not None and len(keys.key_blocks) == 1:
+        me = obj.data
+        co = block_positions(keys.reference_key, len(me.vertices))
+        obj.shape_key_clear()
+        set_mesh_positions(me, co)
+    s.owned_key_name = ""
+    s.created_basis = False

@@ -1,0 +1,118 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""All or nothing: an operation that fails part-way leaves the object as it was.
+
+:func:`preserve_on_error` snapshots what an operation may change (the mesh positions, every shape
+key with its settings and key animation, the LARAP settings, the handles' rest matrices and the
+runtime) and restores it if the block raises, then re-raises. Bind, Bake and Apply run inside it.
+"""
+import contextlib
+
+from .mesh_data import block_positions, mesh_positions, set_mesh_positions, write_block
+from .runtime import restore_entry, snapshot_entry
+
+_SETTING_FIELDS = ("bound", "bind_vertex_count", "bind_topology", "created_basis", "owned_key_name",
+                   "shape_key", "runtime_id")
+_KEY_FIELDS = ("slider_max", "slider_min", "value", "mute", "vertex_group", "interpolation")
+# Keyframe points of the shape keys' f-curves (their "co" is (frame, value), not a vertex position).
+_POINT_VECTORS = ("co", "handle_left", "handle_right")
+_POINT_FIELDS = _POINT_VECTORS + ("interpolation", "handle_left_type", "handle_right_type")
+
+
+def _snapshot(obj):
+    me = obj.data
+    s = obj.larap
+    snap = {"mesh": mesh_positions(me),
+            "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
+            "handles": [(tuple(h.rest_matrix), h.has_rest) for h in s.handles],
+            "active_shape_key_index": obj.active_shape_key_index,
+            "show_only_shape_key": obj.show_only_shape_key,
+            "keys": None, "anim": None}
+    snap["runtime"] = snapshot_entry(obj)
+    keys = me.shape_keys
+    if keys is not None:
+        n = len(me.vertices)
+        snap["use_relative"] = keys.use_relative
+        snap["keys"] = [(kb.name, block_positions(kb, n),
+                         kb.relative_key.name if kb.relative_key else "",
+                         {f: getattr(kb, f) for f in _KEY_FIELDS}) for kb in keys.key_blocks]
+        ad = keys.animation_data
+        if ad is not None and ad.action is not None:
+            snap["anim"] = (ad.action, {(fc.data_path, fc.array_index): [
+                {f: (tuple(getattr(kp, f)) if f in _POINT_VECTORS else getattr(kp, f))
+                 for f in _POINT_FIELDS} for kp in fc.keyframe_points] for fc in ad.action.fcurves})
+    return snap
+
+
+def _restore(obj, snap):
+    me = obj.data
+    s = obj.larap
+    keys = me.shape_keys
+    if snap["keys"] is None:
+        if keys is not None:
+            obj.shape_key_clear()
+    else:
+        names = [entry[0] for entry in snap["keys"]]
+        if keys is not None:
+            for kb in list(keys.key_blocks)[::-1]:
+                if kb.name not in names:
+                    obj.shape_key_remove(kb)
+        for name, co, _rel, _props in snap["keys"]:
+            keys = me.shape_keys
+            if keys is None or name not in keys.key_blocks:
+                obj.shape_key_add(name=name, from_mix=False)
+        keys = me.shape_keys
+        keys.use_relative = snap["use_relative"]
+        for name, co, rel, props in snap["keys"]:
+            kb = keys.key_blocks[name]
+            write_block(kb, co)
+            kb.slider_min = -10.0
+            for f in _KEY_FIELDS:
+                setattr(kb, f, props[f])
+            if rel in keys.key_blocks:
+                kb.relative_key = keys.key_blocks[rel]
+        ad = keys.animation_data
+        if snap["anim"] is None:
+            if ad is not None:
+                ad.action = None
+        else:
+            action, curves = snap["anim"]
+            if ad is None:
+                ad = keys.animation_data_create()
+            ad.action = action
+            for fc in list(action.fcurves):
+                if (fc.data_path, fc.array_index) not in curves:
+                    action.fcurves.remove(fc)
+            for (path, index), points in curves.items():
+                fc = action.fcurves.find(path, index=index) or action.fcurves.new(path, index=index)
+                fc.keyframe_points.clear()
+                fc.keyframe_points.add(len(points))
+                for kp, p in zip(fc.keyframe_points, points):
+                    for f in _POINT_FIELDS:
+                        setattr(kp, f, p[f])
+                fc.update()
+    set_mesh_positions(me, snap["mesh"])
+    obj.show_only_shape_key = snap["show_only_shape_key"]
+    obj.active_shape_key_index = snap["active_shape_key_index"]
+    for f, v in snap["settings"].items():
+        setattr(s, f, v)
+    for h, (m, has) in zip(s.handles, snap["handles"]):
+        h.rest_matrix = m
+        h.has_rest = has
+    restore_entry(obj, snap["runtime"])
+    me.update()
+
+
+@contextlib.contextmanager
+def preserve_on_error(obj):
+    """Snapshot the mesh positions, every shape key (data, settings, key animation), the LARAP
+    settings and the runtime; restore them if the block raises (then re-raise)."""
+    snap = _snapshot(obj)
+    try:
+        yield snap
+    except BaseException:
+        try:
+            _restore(obj, snap)
+        except Exception:  # never mask the original error
+            import traceback
+            traceback.print_exc()
+        raise

@@ -97,7 +97,8 @@ class CpuBackend final : public Backend {
 
   void iterate(int iterations, SolveStats& stats) override {
     if (!llt_ || !targets_set_) throw StateError("set_handles and set_targets must come before iterate");
-    const RowMatrixX3d Bt = H_ + hs_.q * hs_.origin.transpose();  // B^T alpha t, fixed for this solve
+    const Eigen::Map<const Eigen::VectorXd> q(hs_.q.data(), Eigen::Index(hs_.q.size()));
+    const RowMatrixX3d Bt = H_ + q * hs_.origin.transpose();  // B^T alpha t, fixed for this solve
     for (int it = 0; it < iterations; ++it) {
       auto t0 = Clock::now();
       // The pass that fits the new rotations also sums the ARAP energy of the previous

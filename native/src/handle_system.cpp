@@ -140,8 +140,8 @@ void handle_rhs(const HandleSystem& hs, const HandleTargets& targets, RowMatrixX
   }
   if (!targets.groups) throw StateError("handle targets: neither rows nor group maps");
   const int64_t G = hs.num_groups();
-  std::vector<Eigen::Matrix3d> A(size_t(G));
-  std::vector<Eigen::Vector3d> b(size_t(G));
+  std::vector<Eigen::Matrix3d> A(static_cast<size_t>(G));
+  std::vector<Eigen::Vector3d> b(static_cast<size_t>(G));
   for (int64_t g = 0; g < G; ++g) {
     A[g] = targets.groups[g].leftCols<3>();
     b[g] = A[g] * hs.origin + targets.groups[g].col(3) - hs.origin;

@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """One solve: from the handle targets, through the engine, to the pose key.
 
-At each pose: :func:`targets.gather` gives the handle ids and where they should go; the runtime
-gives the engine only what changed (handles, weights, gamma); the engine solves into the
+At each pose: :func:`targets.gather` gives the handle groups and one transform per group; the
+runtime gives the engine only what changed (groups, weights, gamma); the engine solves into the
 runtime's float32 buffer ``rt.out``; :func:`mesh_data.write_pose` copies it into the pose key
 with one ``foreach_set``. :func:`current_pose` is the pose Bake and Apply use.
 """
@@ -43,21 +43,23 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
     t0 = time.perf_counter()
     rt = ensure_runtime(obj, validate)
     d = rt.deformer
-    idx, tgt, warnings = gather(obj, rt, overrides)
+    pose = gather(obj, rt, overrides)
+    warnings = pose.warnings
     wname = _weights_name(s, weights)
     engine_ms = 0.0
     with engine_errors("Solve failed"):
-        if len(idx) == 0:
+        if pose.count == 0:
             warnings.append("no usable handles: rest pose written")
             np.copyto(rt.out, rt.rest)
         else:
-            rt.set_engine_state(idx, wname, float(s.gamma))
+            rt.set_engine_state(pose, wname, float(s.gamma))
             if weights == "final":
                 # The final pose converges (up to 10x the interactive iterations), so solving
                 # again from the same targets gives the same pose.
-                d.solve(tgt, max(30, 10 * int(s.iterations)), out=rt.out, tol=FINAL_TOLERANCE)
+                d.solve(transforms=pose.transforms, iterations=max(30, 10 * int(s.iterations)), out=rt.out,
+                        tol=FINAL_TOLERANCE)
             else:
-                d.solve(tgt, int(s.iterations), out=rt.out)
+                d.solve(transforms=pose.transforms, iterations=int(s.iterations), out=rt.out)
             stats = dict(d.stats)
             rt.stats = stats
             engine_ms = float(stats.get("ms_total", 0.0))
@@ -70,7 +72,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
     rt.last_error = ""
     rt.warnings = warnings
     rt.target_sig = target_signature(obj) if not overrides else None
-    return SolveResult(rt.last_ms, engine_ms, warnings, wname, len(idx))
+    return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count)
 
 
 def current_pose(obj):

@@ -119,6 +119,7 @@ class VIEW3D_PT_larap(bpy.types.Panel):
             hb.prop(h, "target")
             if h.target is not None and h.target.type == "ARMATURE":
                 hb.prop_search(h, "subtarget", h.target.data, "bones", text="Bone")
+            hb.prop(h, "weight")
             if h.vertex_group and h.vertex_group not in obj.vertex_groups:
                 hb.label(text="Vertex group %r missing (renamed or deleted?): pick it again" % h.vertex_group,
                          icon="ERROR")

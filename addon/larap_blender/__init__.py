@@ -11,7 +11,7 @@ Registration only. The add-on's rooms, each one concept (imports point down this
 * ``transaction.py``: all or nothing (snapshot, restore on error).
 * ``solving.py``: one solve, targets -> engine -> pose key; ``session.py``: dragging a handle.
 * ``handlers.py``: live mode and the app handlers; ``core.py``: bind/unbind, handles, bake, apply
-  (and the names scripts use).
+  (and the names scripts use); ``farm.py``: Load Farm Bake (a farm's PC2 cache played by Mesh Cache).
 * ``props.py`` settings, ``operators.py`` and ``modal.py`` operators, ``ui.py`` panels and menus,
   ``overlay.py`` the 3D View drawing.
 """
@@ -31,15 +31,15 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
         importlib.reload(_mod)
 else:
     from . import (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
-                   handlers, core, operators, modal, ui, overlay)
+                   handlers, core, operators, modal, farm, ui, overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
 _MODULES = (engine, props, errors, mesh_data, targets, runtime, transaction, solving, session,
-            handlers, core, operators, modal, ui, overlay)
+            handlers, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
-_CLASS_MODULES = (props, operators, modal, ui)
+_CLASS_MODULES = (props, operators, modal, farm, ui)
 
 _register_classes, _unregister_classes = bpy.utils.register_classes_factory(
     tuple(cls for mod in _CLASS_MODULES for cls in mod.classes))

@@ -33,11 +33,13 @@ def _weights_name(s, which):
     return s.weights_final if which == "final" else s.weights_interactive
 
 
-def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
+def solve(obj, *, weights="final", validate="full", overrides=None, write=True, tol=None, max_iterations=None):
     """One solve from the current target transforms; writes the pose key. Returns SolveResult.
 
     ``weights``: "final", "interactive" or a weights name; ``validate``: see ensure_runtime;
-    ``overrides``: {(target name, bone): world matrix} (a drag in progress)."""
+    ``overrides``: {(target name, bone): world matrix} (a drag in progress). A final solve
+    iterates until the energy changes by less than ``tol`` (default FINAL_TOLERANCE) relative,
+    at most ``max_iterations`` times (default max(30, 10 x the object's iterations))."""
     check_object(obj, need_bound=True)
     s = obj.larap
     t0 = time.perf_counter()
@@ -56,8 +58,9 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True):
             if weights == "final":
                 # The final pose converges (up to 10x the interactive iterations), so solving
                 # again from the same targets gives the same pose.
-                d.solve(transforms=pose.transforms, iterations=max(30, 10 * int(s.iterations)), out=rt.out,
-                        tol=FINAL_TOLERANCE)
+                cap = max(30, 10 * int(s.iterations)) if max_iterations is None else int(max_iterations)
+                d.solve(transforms=pose.transforms, iterations=cap, out=rt.out,
+                        tol=FINAL_TOLERANCE if tol is None else float(tol))
             else:
                 d.solve(transforms=pose.transforms, iterations=int(s.iterations), out=rt.out)
             stats = dict(d.stats)

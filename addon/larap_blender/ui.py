@@ -98,6 +98,7 @@ class VIEW3D_PT_larap(bpy.types.Panel):
         row.operator("larap.bake_shape_key", text="Bake Key", icon="SHAPEKEY_DATA")
         row.operator("larap.bake_animation", text="Bake Anim", icon="RENDER_ANIMATION")
         col.operator("larap.apply", text="Apply Pose", icon="CHECKMARK")
+        col.operator("larap.load_farm_bake", text="Load Farm Bake", icon="FILE_CACHE")
         keys = obj.data.shape_keys
         kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
         if kb is not None:

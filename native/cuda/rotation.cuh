@@ -1,4 +1,5 @@
-// Best rotation of a 3x3 cross-covariance in float, for device and host (host: tests).
+// Best rotation of a 3x3 cross-covariance in float, for the device and the host (LARAP_HD; the
+// host tests are tests/cpp/test_rotation_fit.cpp).
 //
 // R maximises tr(R^T S) over proper rotations (S = sum q p^T, q deformed, p rest edge vectors).
 // Horn's method: tr(R(q)^T S) = q^T N q for a unit quaternion q, N the symmetric 4x4 matrix
@@ -7,15 +8,11 @@
 // (det S < 0) gives the nearest proper rotation (U diag(1,1,-1) V^T) automatically, a rank
 // deficient S any maximiser, S = 0 the identity.
 #pragma once
-
-#ifdef __CUDACC__
-#define LARAP_HD __host__ __device__ __forceinline__
-#else
-#include <cmath>
-#define LARAP_HD inline
-using std::fabs;
-using std::sqrt;
+#ifndef __CUDACC__
+#include <cmath>  // fabsf, sqrtf, fmaxf on the host (tests/cpp/test_rotation_fit.cpp)
 #endif
+
+#include "host_device.h"
 
 namespace larap {
 namespace cuda_math {
@@ -28,7 +25,7 @@ LARAP_HD void jacobi_rotate(float (&a)[4][4], float (&v)[4][4]) {
   const float t = (theta >= 0.0f ? 1.0f : -1.0f) / (fabsf(theta) + sqrtf(theta * theta + 1.0f));
   const float c = 1.0f / sqrtf(t * t + 1.0f);
   const float s = t * c;
-#pragma unroll
+  LARAP_UNROLL
   for (int k = 0; k < 4; ++k) {
     if (k == P || k == Q) continue;
     const float akp = a[k][P], akq = a[k][Q];
@@ -39,7 +36,7 @@ LARAP_HD void jacobi_rotate(float (&a)[4][4], float (&v)[4][4]) {
   a[P][P] -= t * apq;
   a[Q][Q] += t * apq;
   a[P][Q] = a[Q][P] = 0.0f;
-#pragma unroll
+  LARAP_UNROLL
   for (int k = 0; k < 4; ++k) {
     const float vkp = v[k][P], vkq = v[k][Q];
     v[k][P] = c * vkp - s * vkq;
@@ -50,7 +47,7 @@ LARAP_HD void jacobi_rotate(float (&a)[4][4], float (&v)[4][4]) {
 // S row-major (S[3*a+b] = sum q_a p_b). Writes R row-major.
 LARAP_HD void best_rotation_f(const float (&S)[9], float (&R)[9]) {
   float mx = 0.0f;
-#pragma unroll
+  LARAP_UNROLL
   for (int k = 0; k < 9; ++k) mx = fmaxf(mx, fabsf(S[k]));
   const float inv = mx > 0.0f ? 1.0f / mx : 0.0f;
   // M = S^T (Horn's M_ab = sum p_a q_b), scaled.
@@ -62,10 +59,10 @@ LARAP_HD void best_rotation_f(const float (&S)[9], float (&R)[9]) {
                    {Mzx - Mxz, Mxy + Myx, -Mxx + Myy - Mzz, Myz + Mzy},
                    {Mxy - Myx, Mzx + Mxz, Myz + Mzy, -Mxx - Myy + Mzz}};
   float v[4][4] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}};
-#pragma unroll 1
+  LARAP_NO_UNROLL
   for (int sweep = 0; sweep < 6; ++sweep) {
-    const float off = fabsf(a[0][1]) + fabsf(a[0][2]) + fabsf(a[0][3]) + fabsf(a[1][2]) +
-                      fabsf(a[1][3]) + fabsf(a[2][3]);
+    const float off =
+        fabsf(a[0][1]) + fabsf(a[0][2]) + fabsf(a[0][3]) + fabsf(a[1][2]) + fabsf(a[1][3]) + fabsf(a[2][3]);
     if (off <= 1e-9f) break;
     jacobi_rotate<0, 1>(a, v);
     jacobi_rotate<0, 2>(a, v);
@@ -77,7 +74,7 @@ LARAP_HD void best_rotation_f(const float (&S)[9], float (&R)[9]) {
   // Column of the largest eigenvalue (ties: the lowest index, the identity for S = 0).
   float best = a[0][0];
   float w = v[0][0], x = v[1][0], y = v[2][0], z = v[3][0];
-#pragma unroll
+  LARAP_UNROLL
   for (int k = 1; k < 4; ++k) {
     if (a[k][k] > best) {
       best = a[k][k];

@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include "parallel.h"
+#include "stencil.h"
 
 namespace larap {
 
@@ -20,13 +21,6 @@ const char* weight_kind_name(WeightKind kind) {
 
 namespace {
 
-// Uniform quadratic B-spline weights of the nodes at -1, 0, +1 for an offset t in [-1/2, 1/2].
-inline void bspline3(double t, double w[3]) {
-  w[0] = 0.5 * (0.5 - t) * (0.5 - t);
-  w[1] = 0.75 - t * t;
-  w[2] = 0.5 * (0.5 + t) * (0.5 + t);
-}
-
 template <typename T>
 void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
                    const RowMatrixX3d& D, T* out) {
@@ -35,38 +29,29 @@ void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
   if (b.kind == WeightKind::Trilinear) {
     parallel_for(n, [&](int64_t v) {
       const auto& ids = lat.cell_nodes[b.base[v]];
-      const double fx = b.frac[3 * v], fy = b.frac[3 * v + 1], fz = b.frac[3 * v + 2];
-      const double wx[2] = {1.0 - fx, fx}, wy[2] = {1.0 - fy, fy}, wz[2] = {1.0 - fz, fz};
+      double w[8];
+      trilinear_weights<double>(b.frac[3 * v], b.frac[3 * v + 1], b.frac[3 * v + 2], w);
       double acc[3] = {0.0, 0.0, 0.0};
       for (int c = 0; c < 8; ++c) {
-        const double w = wx[c & 1] * wy[(c >> 1) & 1] * wz[c >> 2];
         const double* p = d + 3 * int64_t(ids[c]);
-        acc[0] += w * p[0];
-        acc[1] += w * p[1];
-        acc[2] += w * p[2];
+        acc[0] += w[c] * p[0];
+        acc[1] += w[c] * p[1];
+        acc[2] += w[c] * p[2];
       }
       for (int k = 0; k < 3; ++k) out[3 * v + k] = static_cast<T>(V(v, k) + acc[k]);
     }, 2048);
   } else {
     parallel_for(n, [&](int64_t v) {
       const int32_t* ids = b.node27.data() + 27 * int64_t(b.base[v]);
-      double wx[3], wy[3], wz[3];
-      bspline3(b.frac[3 * v], wx);
-      bspline3(b.frac[3 * v + 1], wy);
-      bspline3(b.frac[3 * v + 2], wz);
+      double w[27];
+      bspline_weights<double>(b.frac[3 * v], b.frac[3 * v + 1], b.frac[3 * v + 2], w);
       double acc[3] = {0.0, 0.0, 0.0};
-      int k = 0;
-      for (int z = 0; z < 3; ++z)
-        for (int y = 0; y < 3; ++y) {
-          const double wyz = wy[y] * wz[z];
-          for (int x = 0; x < 3; ++x, ++k) {
-            const double w = wx[x] * wyz;
-            const double* p = d + 3 * int64_t(ids[k]);
-            acc[0] += w * p[0];
-            acc[1] += w * p[1];
-            acc[2] += w * p[2];
-          }
-        }
+      for (int k = 0; k < 27; ++k) {
+        const double* p = d + 3 * int64_t(ids[k]);
+        acc[0] += w[k] * p[0];
+        acc[1] += w[k] * p[1];
+        acc[2] += w[k] * p[2];
+      }
       for (int c = 0; c < 3; ++c) out[3 * v + c] = static_cast<T>(V(v, c) + acc[c]);
     }, 1024);
   }
@@ -77,24 +62,19 @@ void transfer_impl(const Lattice& lat, const Binding& b, const RowMatrixX3d& V,
 void Binding::weights_of(const Lattice& lat, int64_t v, int32_t* ids, double* w) const {
   if (kind == WeightKind::Trilinear) {
     const auto& cn = lat.cell_nodes[base[v]];
-    const double f[3] = {frac[3 * v], frac[3 * v + 1], frac[3 * v + 2]};
+    double wt[8];
+    trilinear_weights<double>(frac[3 * v], frac[3 * v + 1], frac[3 * v + 2], wt);
     for (int c = 0; c < 8; ++c) {
       ids[c] = cn[c];
-      w[c] = ((c & 1) ? f[0] : 1.0 - f[0]) * (((c >> 1) & 1) ? f[1] : 1.0 - f[1]) *
-             ((c >> 2) ? f[2] : 1.0 - f[2]);
+      w[c] = wt[c];
     }
   } else {
-    double wx[3], wy[3], wz[3];
-    bspline3(frac[3 * v], wx);
-    bspline3(frac[3 * v + 1], wy);
-    bspline3(frac[3 * v + 2], wz);
-    int k = 0;
-    for (int z = 0; z < 3; ++z)
-      for (int y = 0; y < 3; ++y)
-        for (int x = 0; x < 3; ++x, ++k) {
-          ids[k] = node27[27 * int64_t(base[v]) + k];
-          w[k] = wx[x] * wy[y] * wz[z];
-        }
+    double wb[27];
+    bspline_weights<double>(frac[3 * v], frac[3 * v + 1], frac[3 * v + 2], wb);
+    for (int k = 0; k < 27; ++k) {
+      ids[k] = node27[27 * int64_t(base[v]) + k];
+      w[k] = wb[k];
+    }
   }
 }
 

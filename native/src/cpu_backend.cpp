@@ -1,5 +1,6 @@
-// CPU backend: parallel loops over nodes for rotations, right-hand side and energy (parallel.h),
-// CHOLMOD (simplicial Cholesky) for the global step, factorised once per handle set.
+// CPU backend: parallel loops over nodes for rotations, right-hand side and energy (parallel.h;
+// the per-node maths is node_terms.h's, shared with the CUDA kernels), CHOLMOD (simplicial
+// Cholesky) for the global step, factorised once per handle set.
 #include <larap/errors.h>
 
 #ifdef LARAP_WITH_CHOLMOD
@@ -11,8 +12,9 @@
 #include <chrono>
 
 #include "backend.h"
-#include "energy.h"
+#include "node_terms.h"
 #include "parallel.h"
+#include "rigid_fit.h"
 
 namespace larap {
 namespace {
@@ -30,6 +32,32 @@ using Clock = std::chrono::steady_clock;
 double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
+
+// Row-major, so that data() is the 9 entries node_terms.h reads.
+using Rotation = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+
+// Node i's lattice edges (CSR adjacency), as node_terms.h's Edges accessor.
+struct CsrEdges {
+  const double* P;  // pose, #N by 3 row-major
+  const double* C;  // rest
+  const Rotation* R;
+  const int32_t* adj;
+  int64_t i;
+  int32_t begin, end;
+  int size() const { return end - begin; }
+  void edge(int k, double (&dp)[3], double (&dc)[3]) const {
+    const int64_t j = adj[begin + k];
+    for (int a = 0; a < 3; ++a) {
+      dp[a] = P[3 * i + a] - P[3 * j + a];
+      dc[a] = C[3 * i + a] - C[3 * j + a];
+    }
+  }
+  void rest_edge(int k, double (&dc)[3], double (&Rj)[9]) const {
+    const int64_t j = adj[begin + k];
+    for (int a = 0; a < 3; ++a) dc[a] = C[3 * i + a] - C[3 * j + a];
+    for (int q = 0; q < 9; ++q) Rj[q] = R[j].data()[q];
+  }
+};
 
 class CpuBackend final : public Backend {
  public:
@@ -144,33 +172,25 @@ class CpuBackend final : public Backend {
     stats.ms_transfer += ms_since(t0);
   }
 
+  CsrEdges edges_of(int64_t i) const {
+    return {pose_.data(), lat_.rest.data(), R_.data(), lat_.adj.data(), i, lat_.adj_offsets[i],
+            lat_.adj_offsets[i + 1]};
+  }
+
   // New rotations from the current pose. with_energy: first store in node_energy_ each node's
   // energy of the current pose with the rotations it had (the state after the last global step).
   void rotations(bool with_energy) {
-    const int64_t n = lat_.num_nodes();
-    const double* P = pose_.data();
-    const double* C = lat_.rest.data();
-    const int32_t* off = lat_.adj_offsets.data();
-    const int32_t* adj = lat_.adj.data();
-    parallel_for(n, [&](int64_t i) {
-      const Eigen::Vector3d pi(P + 3 * i), ci(C + 3 * i);
-      Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
-      double e = 0.0;
-      for (int32_t k = off[i]; k < off[i + 1]; ++k) {
-        const int64_t j = adj[k];
-        const Eigen::Vector3d dp = pi - Eigen::Vector3d(P + 3 * j), dc = ci - Eigen::Vector3d(C + 3 * j);
-        S.noalias() += dp * dc.transpose();
-        if (with_energy) e += (dp - R_[i] * dc).squaredNorm();
-      }
+    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+      double S[9];
+      const double e = node_covariance(edges_of(i), with_energy, R_[i].data(), S);
       if (with_energy) node_energy_[i] = node_energy(i, e);
-      R_[i] = best_rotation_fast(S);
+      R_[i] = best_rotation_fast(Eigen::Map<const Rotation>(S));
     }, 256);
   }
 
   double node_energy(int64_t i, double arap) const {
-    double e = hs_.gamma_eff * arap;
-    if (hs_.anchored[i]) e += hs_.anchor_weight * (pose_.row(i) - lat_.rest.row(i)).squaredNorm();
-    return e;
+    return larap::node_energy<double>(hs_.gamma_eff, arap, hs_.anchored[i] != 0, hs_.anchor_weight,
+                                      (pose_.row(i) - lat_.rest.row(i)).squaredNorm());
   }
 
   // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term
@@ -186,16 +206,12 @@ class CpuBackend final : public Backend {
   }
 
   void right_hand_side(const RowMatrixX3d& Btt) {
-    const int64_t n = lat_.num_nodes();
     const auto& C = lat_.rest;
     const double g = hs_.gamma_eff, a = hs_.anchor_weight;
-    parallel_for(n, [&](int64_t i) {
-      Eigen::Vector3d b = Eigen::Vector3d::Zero();
-      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
-        const int32_t j = lat_.adj[k];
-        b += (R_[i] + R_[j]) * (C.row(i) - C.row(j)).transpose();
-      }
-      b = g * b + Btt.row(i).transpose();
+    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+      double arap[3];
+      node_rhs(edges_of(i), g, R_[i].data(), arap);
+      Eigen::Vector3d b = Eigen::Vector3d(arap[0], arap[1], arap[2]) + Btt.row(i).transpose();
       if (hs_.anchored[i]) b += a * C.row(i).transpose();
       rhs_.row(i) = b.transpose();
     }, 1024);
@@ -203,16 +219,9 @@ class CpuBackend final : public Backend {
 
   // Energy of the current pose with the current rotations (scaled).
   double evaluate() {
-    const int64_t n = lat_.num_nodes();
-    const auto& P = pose_;
-    const auto& C = lat_.rest;
-    parallel_for(n, [&](int64_t i) {
-      double e = 0.0;
-      for (int32_t k = lat_.adj_offsets[i]; k < lat_.adj_offsets[i + 1]; ++k) {
-        const int32_t j = lat_.adj[k];
-        e += ((P.row(i) - P.row(j)).transpose() - R_[i] * (C.row(i) - C.row(j)).transpose()).squaredNorm();
-      }
-      node_energy_[i] = node_energy(i, e);
+    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+      double S[9];
+      node_energy_[i] = node_energy(i, node_covariance(edges_of(i), true, R_[i].data(), S));
     }, 1024);
     return finish_energy();
   }
@@ -220,7 +229,7 @@ class CpuBackend final : public Backend {
   const Lattice& lat_;
   const RowMatrixX3d& V_;
   RowMatrixX3d pose_;
-  std::vector<Eigen::Matrix3d> R_;
+  std::vector<Rotation> R_;
   std::vector<double> node_energy_;
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B

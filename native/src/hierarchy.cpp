@@ -2,6 +2,7 @@
 
 #include "backend.h"
 #include "handle_system.h"
+#include "stencil.h"
 #include "warm_start.h"
 
 namespace larap {
@@ -55,10 +56,11 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
         if (done[i]) continue;
         done[i] = 1;
         const Eigen::Vector3d f = 0.5 * (finer->node_coords[i] - 2 * parent).cast<double>();  // in [0,1]
+        double w[8];
+        trilinear_weights(f.x(), f.y(), f.z(), w);
         for (int q = 0; q < 8; ++q) {
           lv.prolong_ids[i][q] = lv.lattice.cell_nodes[pc][q];
-          lv.prolong_w[i][q] = ((q & 1) ? f.x() : 1 - f.x()) * (((q >> 1) & 1) ? f.y() : 1 - f.y()) *
-                               ((q >> 2) ? f.z() : 1 - f.z());
+          lv.prolong_w[i][q] = w[q];
         }
       }
     }

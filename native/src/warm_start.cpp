@@ -5,7 +5,7 @@
 #include <Eigen/SVD>
 
 #include "backend.h"
-#include "energy.h"
+#include "rigid_fit.h"
 
 namespace larap {
 

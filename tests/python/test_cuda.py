@@ -3,6 +3,9 @@
 Every test is parametrised over larap.available_devices(); the CUDA cases are skipped, with the
 reason, where this build or machine has no usable GPU.
 """
+import functools
+import os
+
 import numpy as np
 import pytest
 
@@ -13,6 +16,31 @@ DEVICES = larap.available_devices()
 HAVE_CUDA = "cuda" in DEVICES
 need_cuda = pytest.mark.skipif(not HAVE_CUDA, reason="no usable CUDA device/build: "
                                "larap.available_devices() == %r" % (DEVICES,))
+
+
+@functools.lru_cache(maxsize=1)
+def cuda_experiments_built():
+    """Was this build configured with -DLARAP_CUDA_EXPERIMENTS=ON (the rejected solvers and
+    transfer kernels, native/cuda/experiments)? Asked by requesting one of them."""
+    V, F = shapes.tube(length=1.0, radius=0.25, segments=8, rings=4)
+    old = os.environ.get("LARAP_CUDA_SOLVER")
+    os.environ["LARAP_CUDA_SOLVER"] = "pcg"
+    try:
+        larap.Deformer(np.asarray(V, float), F, cells=50, device="cuda")
+        return True
+    except ValueError as e:
+        assert "LARAP_CUDA_EXPERIMENTS" in str(e), e
+        return False
+    finally:
+        if old is None:
+            del os.environ["LARAP_CUDA_SOLVER"]
+        else:
+            os.environ["LARAP_CUDA_SOLVER"] = old
+
+
+def need_experiments():
+    if not cuda_experiments_built():
+        pytest.skip("this build has no LARAP_CUDA_EXPERIMENTS (the rejected variants)")
 
 
 def devices():
@@ -169,7 +197,10 @@ def test_auto_picks_cuda_when_present():
 @need_cuda
 @pytest.mark.parametrize("solver,inner", [("pcg", 8), ("mg", 2), ("mg", 6)])
 def test_solvers_agree_with_cpu(solver, inner, monkeypatch):
-    """Every LARAP_CUDA_SOLVER choice converges to the CPU result (docs/cuda.md, Knobs)."""
+    """Every LARAP_CUDA_SOLVER choice converges to the CPU result (docs/cuda.md, Options;
+    pcg is an experiment: only with LARAP_CUDA_EXPERIMENTS)."""
+    if solver != "mg":
+        need_experiments()
     V, F, h, nl = tube_model()
     T = bend_targets(V, h, nl)
     ref = larap.Deformer(V, F, cells=1500, device="cpu")
@@ -282,7 +313,9 @@ def test_auto_falls_back_when_set_handles_runs_out(monkeypatch):
 @pytest.mark.parametrize("weights", ["trilinear", "bspline"])
 def test_transfer_variants_agree(weights, monkeypatch):
     # Every LARAP_CUDA_TRANSFER kernel gives the scalar kernel's vertices, float32 and float64,
-    # including the partial last block (the vertex count is no multiple of 256 * 4).
+    # including the partial last block (the vertex count is no multiple of 256 * 4). The variants
+    # other than scalar are experiments (LARAP_CUDA_EXPERIMENTS).
+    need_experiments()
     V, F, h, nl = tube_model()
     assert len(V) % 1024 != 0
     T = bend_targets(V, h, nl)
@@ -358,5 +391,20 @@ def test_mg_levels_knob_is_checked(monkeypatch):
     V, F, h, _ = tube_model()
     monkeypatch.setenv("LARAP_CUDA_MG_LEVELS", "5")
     with pytest.raises(ValueError):
+        d = larap.Deformer(V, F, cells=1500, device="cuda")
+        d.set_handles(h)
+
+
+@need_cuda
+@pytest.mark.parametrize("var,value", [("LARAP_CUDA_SOLVER", "pcg"), ("LARAP_CUDA_SOLVER", "cheby"),
+                                       ("LARAP_CUDA_TRANSFER", "staged"), ("LARAP_CUDA_TRANSFER", "ilp2")])
+def test_experiments_need_the_build_option(var, value, monkeypatch):
+    """Without LARAP_CUDA_EXPERIMENTS the rejected variants are a clear ValueError, not a silent
+    fallback; with it they run (test_solvers_agree_with_cpu, test_transfer_variants_agree)."""
+    if cuda_experiments_built():
+        pytest.skip("this build has the experiments")
+    V, F, h, _ = tube_model()
+    monkeypatch.setenv(var, value)
+    with pytest.raises(ValueError, match="LARAP_CUDA_EXPERIMENTS"):
         d = larap.Deformer(V, F, cells=1500, device="cuda")
         d.set_handles(h)

@@ -7,8 +7,9 @@
 namespace larap {
 
 std::unique_ptr<Backend> make_cuda_backend(const Lattice&, const RowMatrixX3d&) {
-  throw DeviceError("device 'cuda' is not available: this build of larap has no CUDA support "
-                    "(nvcc was not found when it was built)");
+  throw DeviceError(
+      "device 'cuda' is not available: this build of larap has no CUDA support "
+      "(nvcc was not found when it was built)");
 }
 
 bool cuda_available(std::string* why) {

@@ -1,4 +1,6 @@
-// Rotation fitting shared by the solver stages (host side).
+// Rotation and rigid-motion fits (host, double): the CPU backend's per-node rotation and the
+// rigid fit of the handles that starts a pose (deformer.cpp). The device's float rotation fit is
+// native/cuda/rotation.cuh.
 #pragma once
 #include <larap/mesh.h>
 

@@ -1,4 +1,4 @@
-#include "energy.h"
+#include "rigid_fit.h"
 
 #include <Eigen/LU>
 #include <Eigen/Eigenvalues>

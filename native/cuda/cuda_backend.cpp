@@ -1,0 +1,718 @@
+// CUDA backend, host side: the lattice system on the device (set up once per set_handles), the
+// flip-flop loop (one cooperative kernel, a CUDA graph, or plain launches), and the transfer with
+// its copy back through pinned memory. Around it, one file per concept: device memory and errors
+// (device_memory.h), options (cuda_options.h), the multigrid set-up (multigrid.h), the kernels
+// (flip_flop.h, solvers.h, transfer.h). Design and figures: docs/cuda.md, docs/results-gpu.md.
+#ifdef LARAP_WITH_CUDA
+#include <cuda_runtime.h>
+#include <larap/errors.h>
+
+#include <Eigen/Dense>
+#include <Eigen/Sparse>
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <mutex>
+#include <vector>
+
+#include "backend.h"
+#include "cuda_options.h"
+#include "device_memory.h"
+#include "flip_flop.h"
+#include "multigrid.h"
+#include "parallel.h"
+#include "solvers.h"
+#include "transfer.h"
+#ifdef LARAP_CUDA_EXPERIMENTS
+#include "experiments/experiments.h"
+#endif
+
+namespace larap {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+// memcpy of large blocks in pieces of 1 MiB over the engine's threads (parallel.h).
+void parallel_copy(void* dst, const void* src, size_t bytes) {
+  constexpr size_t piece = size_t(1) << 20;
+  if (bytes < 4 * piece) {
+    std::memcpy(dst, src, bytes);
+    return;
+  }
+  const int64_t pieces = int64_t((bytes + piece - 1) / piece);
+  const auto copy_piece = [&](int64_t k) {
+    const size_t off = size_t(k) * piece;
+    std::memcpy(static_cast<char*>(dst) + off, static_cast<const char*>(src) + off,
+                std::min(piece, bytes - off));
+  };
+  parallel_for(pieces, copy_piece, 1);
+}
+
+// ------------------------------------------------------------------ the backend
+class CudaBackend final : public Backend {
+ public:
+  CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices) : lat_(lattice), V_(vertices) {
+    n_ = int(lattice.num_nodes());
+    origin_ = 0.5 * (lattice.rest.colwise().minCoeff() + lattice.rest.colwise().maxCoeff()).transpose();
+    std::vector<float4> rest(static_cast<size_t>(n_));
+    for (int i = 0; i < n_; ++i) rest[i] = to_f4(lattice.rest.row(i).transpose());
+    sys_.n = n_;
+    sys_.rest = rest_.upload(rest.data(), rest.size(), stream_);
+    sys_.x = x_.upload(rest.data(), rest.size(), stream_);
+    sys_.adj_off = adj_off_.upload(lattice.adj_offsets.data(), lattice.adj_offsets.size(), stream_);
+    sys_.adj = adj_.upload(lattice.adj.data(), lattice.adj.size(), stream_);
+    {  // fixed-width neighbour table (lattice edges are axis-aligned unit steps)
+      std::vector<int> nbr(size_t(6) * n_);
+      for (int i = 0; i < n_; ++i)
+        for (int d = 0; d < 6; ++d) nbr[size_t(d) * n_ + i] = i;
+      for (int i = 0; i < n_; ++i)
+        for (int k = lattice.adj_offsets[i]; k < lattice.adj_offsets[i + 1]; ++k) {
+          const int j = lattice.adj[k];
+          const int d = nbr_slot(lattice.node_coords[size_t(i)], lattice.node_coords[size_t(j)]);
+          if (d < 0) throw DeviceError("lattice edge is not an axis-aligned unit step");
+          nbr[size_t(d) * n_ + i] = j;
+        }
+      sys_.nbr = nbr_.upload(nbr.data(), nbr.size(), stream_);
+    }
+    sys_.p = p_.reserve(n_);
+    sys_.r[0] = r_[0].reserve(n_);
+    sys_.r[1] = r_[1].reserve(n_);
+    sys_.w[0] = w_[0].reserve(n_);
+    sys_.w[1] = w_[1].reserve(n_);
+    sys_.s[0] = s_[0].reserve(n_);
+    sys_.s[1] = s_[1].reserve(n_);
+    sys_.x_tmp = xtmp_.reserve(n_);
+    sys_.rot = rot_.reserve(size_t(9) * n_);
+    disp_.reserve(n_);
+    sys_.iter = iter_.reserve(1);
+    configure();
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.p, 0, sizeof(float4) * n_, stream_));
+    std::vector<float> eye(static_cast<size_t>(9 * n_), 0.f);
+    for (int i = 0; i < n_; ++i)
+      eye[0 * size_t(n_) + i] = eye[4 * size_t(n_) + i] = eye[8 * size_t(n_) + i] = 1.f;
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float), cudaMemcpyHostToDevice, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  }
+
+  ~CudaBackend() override {
+    graph_.reset();
+    cudaStreamSynchronize(stream_);
+    cudaGetLastError();
+  }
+
+  std::string name() const override { return "cuda"; }
+
+  // The options (cuda_options.h, from the environment) at construction and at every
+  // set_handles, so that a benchmark can switch them without rebuilding the lattice.
+  void configure() {
+    opt_ = cuda::cuda_options_from_environment();
+    inner_ = opt_.inner > 0 ? opt_.inner : (opt_.solver == cuda::Solver::Multigrid ? 2 : 8);
+    graph_.reset();
+    sys_.inner = inner_;
+    sys_.dots = dots_.reserve(size_t(inner_ + 1) * 6);
+    sys_.coef = coef_.reserve(size_t(inner_ + 2) * 8);
+    sys_.counters = counters_.reserve(size_t(inner_ + 1));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.counters, 0, sizeof(unsigned) * (inner_ + 1), stream_));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.coef, 0, sizeof(float) * (inner_ + 2) * 8, stream_));
+  }
+
+  void set_handles(const HandleSystem& hs) override {
+    configure();
+    hs_ = hs;
+    const int n = n_;
+    const int64_t m = hs.m;
+    using SpR = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+    const auto trip = arap_triplets(lat_, hs);
+    SpR A(n, n);
+    A.setFromTriplets(trip.begin(), trip.end());
+    SpR B(m, n);
+    const auto bt = handle_triplets(hs);
+    B.setFromTriplets(bt.begin(), bt.end());
+    const SpR Bt = B.transpose();
+    A = SpR(A + SpR(Bt * B));
+    A.makeCompressed();
+    SpR BtC = Bt;
+    BtC.makeCompressed();
+
+    std::vector<float> aval(A.nonZeros()), minv(size_t(n), 1.f);
+    Eigen::VectorXd diag = Eigen::VectorXd::Ones(n);
+    for (int i = 0; i < n; ++i)
+      for (int q = A.outerIndexPtr()[i]; q < A.outerIndexPtr()[i + 1]; ++q) {
+        aval[q] = float(A.valuePtr()[q]);
+        if (A.innerIndexPtr()[q] == i) diag[i] = A.valuePtr()[q];
+      }
+    for (int i = 0; i < n; ++i) {
+      if (!(diag[i] > 0.0)) throw DeviceError("the lattice system is not positive definite");
+      minv[i] = float(1.0 / diag[i]);
+    }
+    {  // A split: diagonal, 6 lattice slots, remainder CSR (see system.h)
+      std::vector<float> adiag(static_cast<size_t>(n), 1.f), anb(static_cast<size_t>(6) * n, 0.f), rval;
+      std::vector<int> roff(size_t(n) + 1, 0), rcol;
+      for (int i = 0; i < n; ++i) {
+        for (int q = A.outerIndexPtr()[i]; q < A.outerIndexPtr()[i + 1]; ++q) {
+          const int j = A.innerIndexPtr()[q];
+          const float v = float(A.valuePtr()[q]);
+          if (j == i) {
+            adiag[size_t(i)] = v;
+            continue;
+          }
+          const int d = nbr_slot(lat_.node_coords[size_t(i)], lat_.node_coords[size_t(j)]);
+          if (d >= 0 && is_edge(i, j)) {
+            anb[size_t(d) * n + i] = v;
+          } else {
+            rcol.push_back(j);
+            rval.push_back(v);
+          }
+        }
+        roff[size_t(i) + 1] = int(rcol.size());
+      }
+      sys_.a_diag = a_diag_.upload(adiag.data(), adiag.size(), stream_);
+      sys_.a_nb = a_nb_.upload(anb.data(), anb.size(), stream_);
+      sys_.rem_off = rem_off_.upload(roff.data(), roff.size(), stream_);
+      sys_.rem_col = rem_col_.upload(rcol.data(), rcol.size(), stream_);
+      sys_.rem_val = rem_val_.upload(rval.data(), rval.size(), stream_);
+    }
+    std::vector<float> btw(BtC.nonZeros()), bw(hs.weights.size());
+    for (int64_t q = 0; q < BtC.nonZeros(); ++q) btw[q] = float(BtC.valuePtr()[q]);
+    for (size_t q = 0; q < bw.size(); ++q) bw[q] = float(hs.weights[q]);
+
+    graph_.reset();
+    sys_.a_off = a_off_.upload(A.outerIndexPtr(), size_t(n) + 1, stream_);
+    sys_.a_col = a_col_.upload(A.innerIndexPtr(), A.nonZeros(), stream_);
+    sys_.a_val = a_val_.upload(aval.data(), aval.size(), stream_);
+    sys_.minv = minv_.upload(minv.data(), minv.size(), stream_);
+    sys_.bt_off = bt_off_.upload(BtC.outerIndexPtr(), size_t(n) + 1, stream_);
+    sys_.bt_handle = bt_h_.upload(BtC.innerIndexPtr(), BtC.nonZeros(), stream_);
+    sys_.bt_w = bt_w_.upload(btw.data(), btw.size(), stream_);
+    sys_.m = int(m);
+    sys_.stencil = hs.stencil;
+    sys_.b_ids = b_ids_.upload(hs.ids.data(), hs.ids.size(), stream_);
+    sys_.b_w = b_w_.upload(bw.data(), bw.size(), stream_);
+    sys_.anchored = anch_.upload(hs.anchored.data(), hs.anchored.size(), stream_);
+    sys_.g = float(hs.gamma_eff);
+    sys_.a = float(hs.anchor_weight);
+    sys_.targets = targets_.reserve(size_t(std::max<int64_t>(m, 1)));
+    hpos_.reserve(size_t(std::max<int64_t>(m, 1)));
+    h_targets_.reserve(size_t(std::max<int64_t>(m, 1)));
+
+    // Smoothing weight (mg) / Chebyshev bounds: lambda_max of D^-1 A.
+    if (opt_.solver != cuda::Solver::Pcg) {
+      lam_max_ = cuda::jacobi_lambda_max(A, diag);
+      lam_min_ = lam_max_ / opt_.cheby_ratio;
+    }
+    sys_.nc = 0;
+    sys_.nc2 = 0;
+    cuda::Multigrid mg;  // host arrays: live until the stream is synchronised below
+    if (opt_.solver == cuda::Solver::Multigrid) {
+      mg = cuda::build_multigrid(lat_, A, lam_max_, opt_.mg_coarse_max, opt_.mg_levels);
+      upload_multigrid(mg);
+    }
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    ready_ = true;
+  }
+
+  void upload_multigrid(const cuda::Multigrid& mg) {
+    // Default inner iterations: with 2x2x2 aggregates and a dense inverse of them (two levels)
+    // one PCG step per flip-flop reaches quality sooner than two (more flip-flops, each cheaper);
+    // coarser two-level and three-level: two (one needs 2-3x the flip-flops; docs/results-gpu.md).
+    if (opt_.inner == 0 && !mg.three_levels && mg.shift == 1 && inner_ != 1) {
+      inner_ = 1;
+      sys_.inner = 1;
+      graph_.reset();
+    }
+    sys_.nc = mg.nc;
+    sys_.agg = agg_.upload(mg.agg.data(), mg.agg.size(), stream_);
+    sys_.rc = rc_.reserve(size_t(inner_) * mg.nc);
+    sys_.zc = zc_.reserve(size_t(mg.nc));
+    sys_.z = sys_.x_tmp;
+    sys_.q = sys_.w[0];
+    sys_.pb[0] = sys_.s[0];
+    sys_.pb[1] = sys_.s[1];
+    sys_.omega = mg.omega;
+    sys_.ainv = ainv_.upload(mg.ainv.data(), mg.ainv.size(), stream_);
+    sys_.nc2 = mg.nc2;
+    if (!mg.three_levels) return;
+    sys_.agg2 = agg2_.upload(mg.agg2.data(), mg.agg2.size(), stream_);
+    sys_.c_off = c_off_.upload(mg.c_off.data(), mg.c_off.size(), stream_);
+    sys_.c_col = c_col_.upload(mg.c_col.data(), mg.c_col.size(), stream_);
+    sys_.c_val = c_val_.upload(mg.c_val.data(), mg.c_val.size(), stream_);
+    sys_.c_minv = c_minv_.upload(mg.c_minv.data(), mg.c_minv.size(), stream_);
+    sys_.omega1 = mg.omega1;
+    sys_.rc2 = rc2_.reserve(size_t(inner_) * mg.nc2);
+    sys_.zc2 = zc2_.reserve(size_t(mg.nc2));
+  }
+
+  void set_pose(const RowMatrixX3d& nodes) override {
+    std::vector<float4> h(static_cast<size_t>(n_));
+    for (int i = 0; i < n_; ++i) h[i] = to_f4(nodes.row(i).transpose());
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(sys_.x, h.data(), h.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  }
+
+  void get_pose(RowMatrixX3d& nodes) const override {
+    std::vector<float4> h(static_cast<size_t>(n_));
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(h.data(), sys_.x, h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    nodes.resize(n_, 3);
+    for (int i = 0; i < n_; ++i) nodes.row(i) = from_f4(h[i]).transpose();
+  }
+
+  void handle_positions(RowMatrixX3d& out) const override {
+    const int m = sys_.m;
+    out.resize(m, 3);
+    if (!ready_ || m == 0) {
+      out.setZero();
+      return;
+    }
+    std::vector<float4> h(static_cast<size_t>(m));
+    cuda::launch_handle_positions(sys_, hpos_.get(), stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    LARAP_CUDA_CHECK(
+        cudaMemcpyAsync(h.data(), hpos_.get(), h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    for (int j = 0; j < m; ++j) out.row(j) = from_f4(h[j]).transpose();
+  }
+
+  void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) override {
+    // Centred frame: x_c -> R x_c + (R o + t - o).
+    const Eigen::Vector3d tc = R * origin_ + t - origin_;
+    float r9[9];
+    for (int k = 0; k < 9; ++k) r9[k] = float(R(k / 3, k % 3));
+    if (!ready_) {  // anchored flags not known yet: every node moves
+      RowMatrixX3d p;
+      get_pose(p);
+      for (int i = 0; i < n_; ++i) p.row(i) = (R * p.row(i).transpose() + t).transpose();
+      set_pose(p);
+      return;
+    }
+    cuda::launch_rigid(sys_, r9, float(tc.x()), float(tc.y()), float(tc.z()), stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  }
+
+  void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) override {
+    if (!ready_) throw StateError("set_handles must come before iterate");
+    if (iterations <= 0) return;
+    upload_targets(targets);
+    set_energy_buffer(size_t(iterations));
+    h_energy_.reserve(size_t(iterations));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.iter, 0, sizeof(int), stream_));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double) * iterations, stream_));
+    const bool profile = !opt_.profile_path.empty();
+    double ms_rot = 0, ms_rhs = 0, ms_sol = 0;
+    LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
+    if (profile) {
+      for (int it = 0; it < iterations; ++it) {
+        LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
+        cuda::launch_rotations(sys_, true, -1, stream_);
+        LARAP_CUDA_CHECK(cudaGetLastError());
+        LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
+        cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid,
+                         stream_);
+        LARAP_CUDA_CHECK(cudaGetLastError());
+        LARAP_CUDA_CHECK(cudaEventRecord(ev_[2].get(), stream_));
+        launch_solver();
+        LARAP_CUDA_CHECK(cudaEventRecord(ev_[3].get(), stream_));
+        LARAP_CUDA_CHECK(cudaEventSynchronize(ev_[3].get()));
+        ms_rot += cuda::elapsed_ms(ev_[0], ev_[1]);
+        ms_rhs += cuda::elapsed_ms(ev_[1], ev_[2]);
+        ms_sol += cuda::elapsed_ms(ev_[2], ev_[3]);
+      }
+      LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
+    } else if (opt_.solver == cuda::Solver::Multigrid && opt_.fused && fused_blocks() > 0) {
+      // One cooperative launch for all flip-flops (energy of flip-flop it - 1 in its rotation
+      // phase, as in the graph); at most kFusedChunk flip-flops a launch.
+      constexpr int kFusedChunk = 64;
+      for (int it0 = 0; it0 < iterations; it0 += kFusedChunk) {
+        cuda::System sc = sys_;
+        sc.energy = sys_.energy + it0;
+        const int cnt = std::min(kFusedChunk, iterations - it0);
+        if (it0 > 0) {  // the first rotation phase of this chunk adds flip-flop it0 - 1's energy
+          cuda::launch_rotations(sys_, false, it0 - 1, stream_);
+          LARAP_CUDA_CHECK(cudaGetLastError());
+        }
+        LARAP_CUDA_CHECK(cuda::launch_mg_fused(sc, cnt, fused_blocks(), stream_));
+      }
+    } else if (opt_.graph) {
+      if (!graph_.get()) build_graph();
+      for (int it = 0; it < iterations; ++it) LARAP_CUDA_CHECK(cudaGraphLaunch(graph_.get(), stream_));
+    } else {
+      for (int it = 0; it < iterations; ++it) flip_flop();
+    }
+    cuda::launch_rotations(sys_, false, iterations - 1, stream_);  // energy of the last pose
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
+    LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * iterations,
+                                     cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    const double loop_ms = cuda::elapsed_ms(ev_[0], ev_[1]);
+    for (int it = 0; it < iterations; ++it) stats.energy.push_back(h_energy_.get()[it] * hs_.energy_scale);
+    if (profile) {
+      stats.ms_rotations += ms_rot + loop_ms;  // + the final energy pass
+      stats.ms_rhs += ms_rhs;
+      stats.ms_solve += ms_sol;
+      write_profile(
+          "iterate", iterations,
+          {{"ms_rotations", ms_rot}, {"ms_rhs", ms_rhs}, {"ms_solve", ms_sol}, {"ms_final_energy", loop_ms}});
+    } else {
+      // One graph per flip-flop: the stages are not timed apart; the loop's device time is
+      // reported as solve time (docs/cuda.md).
+      stats.ms_solve += loop_ms;
+    }
+  }
+
+  double energy(const RowMatrixX3d& targets) override {
+    if (!ready_) throw StateError("set_handles must come before energy");
+    upload_targets(targets);
+    set_energy_buffer(1);
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double), stream_));
+    cuda::launch_rotations(sys_, true, -2, stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    cuda::launch_rotations(sys_, false, 0, stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    double e = 0.0;
+    LARAP_CUDA_CHECK(cudaMemcpyAsync(&e, sys_.energy, sizeof(double), cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    return e * hs_.energy_scale;
+  }
+
+  void transfer(const Binding& b, double* out, SolveStats& stats) override { transfer_any(b, out, stats); }
+
+  // The transfer into the device output buffer, left there (no copy to the host).
+  const float* transfer_on_device(const Binding& b, SolveStats& stats) override {
+    const auto t0 = Clock::now();
+    const int64_t nv = b.num_vertices();
+    DevBinding& d = device_binding(b);
+    const float* V = device_vertices(static_cast<float*>(nullptr));
+    float* dout = device_out(static_cast<float*>(nullptr), size_t(3 * nv));
+    cuda::launch_displacement(sys_, disp_.get(), stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    launch_transfer(b, d, 0, nv, V, dout);
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // consumers on other streams may read it now
+    stats.ms_transfer += ms_since(t0);
+    return dout;
+  }
+  void transfer(const Binding& b, float* out, SolveStats& stats) override { transfer_any(b, out, stats); }
+
+ private:
+  // Slot of j among i's lattice neighbours (-x,+x,-y,+y,-z,+z), or -1 if not a unit step.
+  static int nbr_slot(const Eigen::Vector3i& ci, const Eigen::Vector3i& cj) {
+    const Eigen::Vector3i d = cj - ci;
+    if (d.cwiseAbs().sum() != 1) return -1;
+    for (int a = 0; a < 3; ++a)
+      if (d[a] != 0) return 2 * a + (d[a] > 0 ? 1 : 0);
+    return -1;
+  }
+  // Is (i, j) a lattice edge? (a unit step between nodes need not be one: its cells may be gone)
+  bool is_edge(int i, int j) const {
+    const auto b = lat_.adj.begin() + lat_.adj_offsets[i], e = lat_.adj.begin() + lat_.adj_offsets[i + 1];
+    return std::binary_search(b, e, j);
+  }
+
+  float4 to_f4(const Eigen::Vector3d& p) const {
+    const Eigen::Vector3d c = p - origin_;
+    return make_float4(float(c.x()), float(c.y()), float(c.z()), 0.f);
+  }
+  Eigen::Vector3d from_f4(const float4& p) const { return Eigen::Vector3d(p.x, p.y, p.z) + origin_; }
+
+  // The graph holds the buffer's address: a new buffer needs a new graph.
+  void set_energy_buffer(size_t n) {
+    double* e = energy_.reserve(std::max<size_t>(n, 256));
+    if (e != sys_.energy) {
+      sys_.energy = e;
+      graph_.reset();
+    }
+  }
+
+  void upload_targets(const RowMatrixX3d& targets) {
+    const int m = sys_.m;
+    float4* h = h_targets_.reserve(size_t(std::max(m, 1)));
+    for (int j = 0; j < m; ++j) h[j] = to_f4(targets.row(j).transpose());
+    if (m)
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(const_cast<float4*>(sys_.targets), h, sizeof(float4) * m,
+                                       cudaMemcpyHostToDevice, stream_));
+  }
+
+  void launch_solver() {
+    if (opt_.solver == cuda::Solver::Multigrid) {
+      for (int k = 0; k < inner_; ++k) {
+        cuda::launch_mg_iteration(sys_, k, stream_);
+        LARAP_CUDA_CHECK(cudaGetLastError());
+      }
+      cuda::launch_mg_final(sys_, stream_);
+      LARAP_CUDA_CHECK(cudaGetLastError());
+      return;
+    }
+#ifdef LARAP_CUDA_EXPERIMENTS
+    cuda::launch_experimental_solver(sys_, opt_.solver, inner_, lam_min_, lam_max_, stream_);
+#endif
+  }
+
+  // Blocks for the fused kernel (0: no cooperative launch possible).
+  int fused_blocks() {
+    if (coop_max_ < 0) coop_max_ = cuda::mg_fused_max_blocks();
+    if (coop_max_ <= 0) return 0;
+    int dev = 0, sms = 1;
+    LARAP_CUDA_CHECK(cudaGetDevice(&dev));
+    LARAP_CUDA_CHECK(cudaDeviceGetAttribute(&sms, cudaDevAttrMultiProcessorCount, dev));
+    int b = opt_.coop_blocks > 0 ? opt_.coop_blocks : std::max((n_ + 255) / 256, sms);
+    return std::clamp(b, 1, coop_max_);
+  }
+
+  void flip_flop() {
+    cuda::launch_rotations(sys_, true, -1, stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid,
+                     stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    launch_solver();
+  }
+
+  void build_graph() {
+    cudaGraph_t g = nullptr;
+    LARAP_CUDA_CHECK(cudaStreamBeginCapture(stream_, cudaStreamCaptureModeThreadLocal));
+    try {
+      flip_flop();
+    } catch (...) {
+      cudaStreamEndCapture(stream_, &g);
+      if (g) cudaGraphDestroy(g);
+      cudaGetLastError();
+      throw;
+    }
+    LARAP_CUDA_CHECK(cudaStreamEndCapture(stream_, &g));
+    cudaGraphExec_t exec = nullptr;
+    const cudaError_t e = cudaGraphInstantiate(&exec, g, 0);
+    cudaGraphDestroy(g);
+    if (e != cudaSuccess) cuda::fail(e, "cudaGraphInstantiate");
+    graph_.set(exec);
+  }
+
+  struct DevBinding {
+    const Binding* key = nullptr;
+    int64_t nv = -1;
+    cuda::DeviceBuffer<int> table;
+    cuda::DeviceBuffer<float4> packed;  // (base id as int bits, 3 fractions)
+  };
+
+  DevBinding& device_binding(const Binding& b) {
+    DevBinding& d = bind_[b.kind == WeightKind::Trilinear ? 0 : 1];
+    if (d.key == &b && d.nv == b.num_vertices()) return d;
+    d.key = nullptr;
+    {
+      const int64_t nv = b.num_vertices();
+      std::vector<float4> pk(static_cast<size_t>(nv));
+      for (int64_t v = 0; v < nv; ++v) {
+        int32_t id = int32_t(b.base[size_t(v)]);
+        float fb;
+        std::memcpy(&fb, &id, sizeof(fb));
+        pk[size_t(v)] = make_float4(fb, float(b.frac[size_t(3 * v)]), float(b.frac[size_t(3 * v + 1)]),
+                                    float(b.frac[size_t(3 * v + 2)]));
+      }
+      d.packed.upload(pk.data(), pk.size(), stream_);
+    }
+    if (b.kind == WeightKind::Trilinear) {
+      static_assert(sizeof(lat_.cell_nodes[0]) == 8 * sizeof(int32_t), "cell_nodes layout");
+      d.table.upload(reinterpret_cast<const int*>(lat_.cell_nodes.data()), lat_.cell_nodes.size() * 8,
+                     stream_);
+    } else {
+      d.table.upload(b.node27.data(), b.node27.size(), stream_);
+    }
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    d.key = &b;
+    d.nv = b.num_vertices();
+    return d;
+  }
+
+  const float* device_vertices(float*) {
+    if (!vf_.get() || vf_n_ != V_.rows()) {
+      std::vector<float> h(size_t(V_.size()));
+      for (Eigen::Index k = 0; k < V_.size(); ++k) h[k] = float(V_.data()[k]);
+      vf_.upload(h.data(), h.size(), stream_);
+      LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+      vf_n_ = V_.rows();
+    }
+    return vf_.get();
+  }
+  const double* device_vertices(double*) {
+    if (!vd_.get() || vd_n_ != V_.rows()) {
+      vd_.upload(V_.data(), size_t(V_.size()), stream_);
+      LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+      vd_n_ = V_.rows();
+    }
+    return vd_.get();
+  }
+  float* device_out(float*, size_t n) { return outf_.reserve(n); }
+  double* device_out(double*, size_t n) { return outd_.reserve(n); }
+
+  template <typename T>
+  void launch_transfer(const Binding& b, DevBinding& d, int64_t v0, int64_t v1, const T* V, T* out) {
+    const bool trilinear = b.kind == WeightKind::Trilinear;
+#ifdef LARAP_CUDA_EXPERIMENTS
+    if (opt_.transfer.mode != cuda::TransferKernel::Scalar) {
+      cuda::launch_experimental_transfer(opt_.transfer, trilinear, v0, v1, d.packed.get(), d.table.get(),
+                                         disp_.get(), V, out, stream_);
+      return;
+    }
+#endif
+    if (trilinear)
+      cuda::launch_transfer_trilinear(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, stream_);
+    else
+      cuda::launch_transfer_bspline(v0, v1, d.packed.get(), d.table.get(), disp_.get(), V, out, stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+  }
+
+  template <typename T>
+  void transfer_any(const Binding& b, T* out, SolveStats& stats) {
+    const auto t0 = Clock::now();
+    const int64_t nv = b.num_vertices();
+    if (nv == 0) return;
+    DevBinding& d = device_binding(b);
+    const T* V = device_vertices(static_cast<T*>(nullptr));
+    T* dout = device_out(static_cast<T*>(nullptr), size_t(3 * nv));
+    T* stage = reinterpret_cast<T*>(staging_.reserve(size_t(3 * nv) * sizeof(T)));
+    cuda::launch_displacement(sys_, disp_.get(), stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
+    double kernel_ms = -1.0, kernel_rep_ms = -1.0;
+    if (!opt_.profile_path.empty()) {  // kernel alone, timed (then the pipeline below repeats it)
+      LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
+      launch_transfer(b, d, 0, nv, V, dout);
+      LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
+      LARAP_CUDA_CHECK(cudaEventSynchronize(ev_[1].get()));
+      kernel_ms = cuda::elapsed_ms(ev_[0], ev_[1]);
+      // and the mean of kRep back-to-back launches (no launch gap between events and kernel)
+      constexpr int kRep = 10;
+      LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
+      for (int r = 0; r < kRep; ++r) launch_transfer(b, d, 0, nv, V, dout);
+      LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
+      LARAP_CUDA_CHECK(cudaEventSynchronize(ev_[1].get()));
+      kernel_rep_ms = cuda::elapsed_ms(ev_[0], ev_[1]) / kRep;
+    }
+    // Pipeline: chunk c is computed, copied to pinned memory, and copied on to `out` by the host
+    // while the device works on chunk c + 1.
+    const auto t1 = Clock::now();
+    constexpr int64_t chunk = int64_t(1) << 18;
+    const int64_t nchunks = (nv + chunk - 1) / chunk;
+    while (int64_t(chunk_ev_.size()) < nchunks) chunk_ev_.emplace_back(std::make_unique<cuda::Event>());
+    for (int64_t c = 0; c < nchunks; ++c) {
+      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
+      launch_transfer(b, d, v0, v1, V, dout);
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(stage + 3 * v0, dout + 3 * v0, sizeof(T) * 3 * (v1 - v0),
+                                       cudaMemcpyDeviceToHost, stream_));
+      LARAP_CUDA_CHECK(cudaEventRecord(chunk_ev_[c]->get(), stream_));
+    }
+    for (int64_t c = 0; c < nchunks; ++c) {
+      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
+      LARAP_CUDA_CHECK(cudaEventSynchronize(chunk_ev_[c]->get()));
+      parallel_copy(out + 3 * v0, stage + 3 * v0, sizeof(T) * 3 * (v1 - v0));
+    }
+    const double ms = ms_since(t0);
+    stats.ms_transfer += ms;
+    if (!opt_.profile_path.empty())
+      write_profile("transfer", 0,
+                    {{"kernel_ms", kernel_ms},
+                     {"kernel_rep_ms", kernel_rep_ms},
+                     {"pipeline_ms", ms_since(t1)},
+                     {"total_ms", ms},
+                     {"vertices", double(nv)},
+                     {"bytes_out", double(sizeof(T) * 3 * nv)},
+                     {"stencil", double(b.stencil_size())},
+                     {"elem_size", double(sizeof(T))}});
+  }
+
+  void write_profile(const char* what, int iterations,
+                     std::initializer_list<std::pair<const char*, double>> kv) {
+    FILE* f = std::fopen(opt_.profile_path.c_str(), "a");
+    if (!f) return;
+    std::fprintf(f, "{\"what\": \"%s\", \"nodes\": %d, \"handles\": %d, \"iterations\": %d, \"inner\": %d",
+                 what, n_, sys_.m, iterations, inner_);
+    for (const auto& p : kv) std::fprintf(f, ", \"%s\": %.6g", p.first, p.second);
+    std::fprintf(f, "}\n");
+    std::fclose(f);
+  }
+
+  const Lattice& lat_;
+  const RowMatrixX3d& V_;
+  Eigen::Vector3d origin_;
+  int n_ = 0;
+  cuda::CudaOptions opt_;
+  int inner_ = 8;      // inner solver iterations per flip-flop (opt_.inner, or automatic)
+  int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
+  double lam_min_ = 0.0, lam_max_ = 2.0;
+  bool ready_ = false;
+  HandleSystem hs_;
+
+  cuda::Stream stream_;  // first: destroyed after every buffer's last use
+  cuda::System sys_;
+  cuda::DeviceBuffer<float4> rest_, x_, p_, r_[2], w_[2], s_[2], xtmp_, targets_, disp_;
+  mutable cuda::DeviceBuffer<float4> hpos_;
+  cuda::DeviceBuffer<int> agg_, nbr_, rem_off_, rem_col_;
+  cuda::DeviceBuffer<float> a_diag_, a_nb_, rem_val_;
+  cuda::DeviceBuffer<float> ainv_;
+  cuda::DeviceBuffer<float4> rc_, zc_, rc2_, zc2_;
+  cuda::DeviceBuffer<int> agg2_, c_off_, c_col_;
+  cuda::DeviceBuffer<float> c_val_, c_minv_;
+  cuda::DeviceBuffer<int> adj_off_, adj_, a_off_, a_col_, bt_off_, bt_h_, b_ids_, iter_;
+  cuda::DeviceBuffer<float> a_val_, minv_, bt_w_, b_w_, rot_, coef_;
+  cuda::DeviceBuffer<uint8_t> anch_;
+  cuda::DeviceBuffer<double> dots_, energy_;
+  cuda::DeviceBuffer<unsigned> counters_;
+  cuda::PinnedBuffer<float4> h_targets_;
+  cuda::PinnedBuffer<double> h_energy_;
+  cuda::PinnedBuffer<char> staging_;
+  DevBinding bind_[2];
+  cuda::DeviceBuffer<float> vf_;
+  cuda::DeviceBuffer<double> vd_;
+  int64_t vf_n_ = -1, vd_n_ = -1;
+  cuda::DeviceBuffer<float> outf_;
+  cuda::DeviceBuffer<double> outd_;
+  cuda::Event ev_[4];
+  std::vector<std::unique_ptr<cuda::Event>> chunk_ev_;
+  cuda::GraphExec graph_;  // last: destroyed first
+};
+
+}  // namespace
+
+std::unique_ptr<Backend> make_cuda_backend(const Lattice& lattice, const RowMatrixX3d& vertices) {
+  std::string why;
+  if (!cuda_available(&why)) throw DeviceError("device 'cuda' is not available: " + why);
+  return std::make_unique<CudaBackend>(lattice, vertices);
+}
+
+bool cuda_available(std::string* why) {
+  static std::once_flag once;
+  static bool ok = false;
+  static std::string reason;
+  std::call_once(once, [] {
+    int count = 0;
+    cudaError_t e = cudaGetDeviceCount(&count);
+    if (e != cudaSuccess) {
+      cudaGetLastError();
+      reason = std::string("no usable CUDA device (") + cudaGetErrorString(e) + ")";
+      return;
+    }
+    if (count == 0) {
+      reason = "no CUDA device found";
+      return;
+    }
+    e = cuda::probe_kernels();
+    if (e != cudaSuccess) {
+      cudaGetLastError();
+      reason = std::string("this build's kernels cannot run on the GPU present (") + cudaGetErrorString(e) +
+               "); rebuild with CMAKE_CUDA_ARCHITECTURES for it";
+      return;
+    }
+    ok = true;
+  });
+  if (!ok && why) *why = reason;
+  return ok;
+}
+
+}  // namespace larap
+#endif  // LARAP_WITH_CUDA

@@ -1,0 +1,68 @@
+// Options of the CUDA backend, with their defaults (docs/cuda.md, "Options").
+//
+// The product runs on the defaults. Benchmarks and tests set options through environment
+// variables LARAP_CUDA_<NAME>, parsed in exactly one place, cuda_options_from_environment()
+// (cuda_options.cpp), which the backend calls when it is made and at every set_handles (so that
+// a benchmark can switch options without rebuilding the lattice). A bad value is
+// larap::InvalidInput naming the variable. The fault injection for the out-of-memory tests,
+// LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES, is not an option: it is read at every allocation
+// (device_memory.h).
+//
+// Experiments: the solvers pcg, cheby and jacobi and the transfer kernels staged and ilp* were
+// measured and rejected (docs/results-gpu.md); they are compiled only with the CMake option
+// LARAP_CUDA_EXPERIMENTS=ON (native/cuda/experiments/); otherwise asking for one is
+// InvalidInput.
+#pragma once
+#include <string>
+
+namespace larap {
+namespace cuda {
+
+// Inner linear solver of each flip-flop.
+enum class Solver {
+  Multigrid,  // mg: CG preconditioned by a two- or three-level aggregation cycle (the product)
+  Pcg,        // experiment: Jacobi-preconditioned CG, one fused kernel per iteration
+  Chebyshev,  // experiment: Chebyshev-accelerated Jacobi
+  Jacobi,     // experiment: weighted Jacobi
+};
+
+// Kernel of the vertex transfer.
+struct TransferKernel {
+  enum Mode { Scalar = 0, Staged = 1, Ilp = 2 };
+  Mode mode = Scalar;           // scalar: one vertex per thread (the product); staged, ilp: experiments
+  int vertices_per_thread = 1;  // ilp: 1, 2 or 4
+  bool streaming = false;       // ilp: streaming cache hints on read-once data
+};
+
+struct CudaOptions {
+  Solver solver = Solver::Multigrid;  // LARAP_CUDA_SOLVER = mg | pcg | cheby | jacobi
+  // Inner solver iterations per flip-flop, 1..1000; 0 = automatic: mg 1 with two levels whose
+  // coarse level is 2x2x2 aggregates, else 2; the experiments 8.   LARAP_CUDA_INNER
+  int inner = 0;
+  int mg_coarse_max = 1536;  // most nodes of mg's dense coarsest level, 1..8192  LARAP_CUDA_MG_COARSE
+  // mg levels: 0 = automatic (2 when the 2x2x2 aggregates are at most mg_coarse_max nodes,
+  // else 3), 2 or 3.                                                  LARAP_CUDA_MG_LEVELS
+  int mg_levels = 0;
+  bool fused = true;    // mg: all flip-flops of a solve in one cooperative kernel  LARAP_CUDA_FUSED
+  bool graph = true;    // otherwise: one CUDA graph per flip-flop (false: plain launches)  LARAP_CUDA_GRAPH
+  int coop_blocks = 0;  // blocks of the fused kernel; 0 = max(ceil(n / 256), #SMs)  LARAP_CUDA_COOP_BLOCKS
+  // A file to which per-stage device times are appended as JSON lines (plain launches, a sync
+  // per flip-flop); empty = off.                                      LARAP_CUDA_PROFILE
+  std::string profile_path;
+  TransferKernel transfer;    // LARAP_CUDA_TRANSFER = scalar | staged | ilp1 | ilp2 | ilp4 | ilp2s | ilp4s
+  double cheby_ratio = 50.0;  // cheby: lambda_max / lambda_min assumed   LARAP_CUDA_CHEBY_RATIO
+};
+
+// The options from the LARAP_CUDA_* environment variables (unset or empty: the default).
+CudaOptions cuda_options_from_environment();
+
+// Was this build made with LARAP_CUDA_EXPERIMENTS?
+constexpr bool kExperimentsBuilt =
+#ifdef LARAP_CUDA_EXPERIMENTS
+    true;
+#else
+    false;
+#endif
+
+}  // namespace cuda
+}  // namespace larap

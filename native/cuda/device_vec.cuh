@@ -1,0 +1,72 @@
+// Device helpers shared by the kernels of native/cuda (*.cu only): float4 arithmetic on the
+// (x, y, z) columns, block sums into double atomics, and the product of one row of A.
+#pragma once
+#include <cuda_runtime.h>
+
+#include <cstdint>
+
+#include "system.h"
+
+namespace larap {
+namespace cuda {
+
+constexpr int kBlock = 256;
+constexpr unsigned kFull = 0xffffffffu;
+
+__device__ __forceinline__ float4 f4(float x, float y, float z) { return make_float4(x, y, z, 0.f); }
+__device__ __forceinline__ float4 operator+(float4 a, float4 b) {
+  return f4(a.x + b.x, a.y + b.y, a.z + b.z);
+}
+__device__ __forceinline__ float4 operator-(float4 a, float4 b) {
+  return f4(a.x - b.x, a.y - b.y, a.z - b.z);
+}
+__device__ __forceinline__ float4 operator*(float s, float4 a) { return f4(s * a.x, s * a.y, s * a.z); }
+// Per-column products (3 independent systems).
+__device__ __forceinline__ float4 cmul(float4 a, float4 b) { return f4(a.x * b.x, a.y * b.y, a.z * b.z); }
+__device__ __forceinline__ float dot3(float4 a, float4 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+inline int blocks_for(int64_t n) { return int((n + kBlock - 1) / kBlock); }
+
+// Sums NV doubles over the block and adds them to dst[0..NV) (one atomic per value and block).
+template <int NV>
+__device__ void block_add(double (&v)[NV], double* dst) {
+  __shared__ double sh[NV][kBlock / 32];
+  const int lane = threadIdx.x & 31, warp = threadIdx.x >> 5;
+#pragma unroll
+  for (int k = 0; k < NV; ++k)
+    for (int o = 16; o > 0; o >>= 1) v[k] += __shfl_down_sync(kFull, v[k], o);
+  if (lane == 0)
+#pragma unroll
+    for (int k = 0; k < NV; ++k) sh[k][warp] = v[k];
+  __syncthreads();
+  if (warp == 0) {
+#pragma unroll
+    for (int k = 0; k < NV; ++k) {
+      double t = lane < kBlock / 32 ? sh[k][lane] : 0.0;
+      for (int o = 16; o > 0; o >>= 1) t += __shfl_down_sync(kFull, t, o);
+      if (lane == 0 && t != 0.0) atomicAdd(dst + k, t);
+    }
+  }
+}
+
+// (A v)_i with v_j = get(j): diagonal + 6 unrolled lattice slots (all loads in flight at once)
+// + the short remainder list.
+template <class F>
+__device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
+  int js[6];
+  float as[6];
+#pragma unroll
+  for (int d = 0; d < 6; ++d) {
+    js[d] = __ldg(s.nbr + d * s.n + i);
+    as[d] = __ldg(s.a_nb + d * s.n + i);
+  }
+  float4 acc = __ldg(s.a_diag + i) * get(i);
+#pragma unroll
+  for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d]);
+  const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
+  for (int q = q0; q < q1; ++q) acc = acc + __ldg(s.rem_val + q) * get(__ldg(s.rem_col + q));
+  return acc;
+}
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,110 @@
+// Kernels of the flip-flop's rotation and right-hand-side stages, and the small per-node
+// kernels (see flip_flop.h; per-node maths in flip_flop.cuh and node_terms.h).
+#include "flip_flop.cuh"
+#include "flip_flop.h"
+
+namespace larap {
+namespace cuda {
+namespace {
+
+__global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
+  const int t = blockIdx.x * blockDim.x + threadIdx.x;
+  int e_slot = slot;
+  if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
+  double e = 0.0;
+  if (t < s.n) e += rot_node(s, t, write_rot, e_slot >= 0);
+  if (e_slot >= 0 && t < s.m) e += handle_energy(s, t);
+  if (e_slot >= 0) {
+    double v[1] = {e};
+    block_add<1>(v, s.energy + e_slot);
+  }
+}
+
+__global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (blockIdx.x == 0) {  // fresh solver scalars for this flip-flop
+    for (int k = threadIdx.x; k < (s.inner + 1) * 6; k += blockDim.x) s.dots[k] = 0.0;
+    for (int k = threadIdx.x; k < s.inner + 1; k += blockDim.x) s.counters[k] = 0u;
+    if (threadIdx.x == 0) *s.iter += 1;
+  }
+  if (s.nc > 0) {  // two-level CG: zero the restriction slots of this flip-flop
+    const int64_t tot = int64_t(s.inner) * s.nc;
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot;
+         k += int64_t(gridDim.x) * blockDim.x)
+      s.rc[k] = f4(0, 0, 0);
+    const int64_t tot2 = int64_t(s.inner) * s.nc2;
+    for (int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; k < tot2;
+         k += int64_t(gridDim.x) * blockDim.x)
+      s.rc2[k] = f4(0, 0, 0);
+  }
+  if (i >= s.n) return;
+  float4 b = rhs_at(s, i);
+  if (residual) {
+    const float4* x = s.x;
+    b = b - spmv_row(s, i, [&](int j) { return x[j]; });
+  }
+  s.r[0][i] = b;
+}
+
+// ---------------------------------------------------------------- small helpers
+struct Mat3f {
+  float m[9];
+};
+
+__global__ void rigid_kernel(System s, Mat3f R, float4 t) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= s.n || s.anchored[i]) return;
+  const float4 p = s.x[i];
+  s.x[i] =
+      f4(R.m[0] * p.x + R.m[1] * p.y + R.m[2] * p.z + t.x, R.m[3] * p.x + R.m[4] * p.y + R.m[5] * p.z + t.y,
+         R.m[6] * p.x + R.m[7] * p.y + R.m[8] * p.z + t.z);
+}
+
+__global__ void handle_positions_kernel(System s, float4* out) {
+  const int j = blockIdx.x * blockDim.x + threadIdx.x;
+  if (j >= s.m) return;
+  float4 acc = f4(0, 0, 0);
+  for (int k = 0; k < s.stencil; ++k) acc = acc + s.b_w[j * s.stencil + k] * s.x[s.b_ids[j * s.stencil + k]];
+  out[j] = acc;
+}
+
+__global__ void displacement_kernel(System s, float4* disp) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i < s.n) disp[i] = s.x[i] - s.rest[i];
+}
+
+__global__ void probe_kernel() {}
+
+}  // namespace
+
+void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st) {
+  const int64_t n = s.n > s.m ? s.n : s.m;
+  if (n == 0) return;
+  rotations_kernel<<<blocks_for(n), kBlock, 0, st>>>(s, write_rot, slot);
+}
+
+void launch_rhs(const System& s, bool residual, cudaStream_t st) {
+  rhs_kernel<<<blocks_for(s.n > 0 ? s.n : 1), kBlock, 0, st>>>(s, residual);
+}
+
+void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st) {
+  Mat3f R;
+  for (int k = 0; k < 9; ++k) R.m[k] = R9[k];
+  if (s.n) rigid_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, R, make_float4(tx, ty, tz, 0.f));
+}
+
+void launch_handle_positions(const System& s, float4* out, cudaStream_t st) {
+  if (s.m) handle_positions_kernel<<<blocks_for(s.m), kBlock, 0, st>>>(s, out);
+}
+
+void launch_displacement(const System& s, float4* disp, cudaStream_t st) {
+  if (s.n) displacement_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, disp);
+}
+
+cudaError_t probe_kernels() {
+  cudaFuncAttributes attr;
+  return cudaFuncGetAttributes(&attr, probe_kernel);
+}
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,31 @@
+// Launchers of the flip-flop's stages other than the linear solve (kernels: flip_flop.cu), and
+// the small per-node kernels of the backend (rigid motion, handle positions, displacement).
+// Internal to native/cuda.
+#pragma once
+#include <cuda_runtime.h>
+
+#include "system.h"
+
+namespace larap {
+namespace cuda {
+
+// Rotations (+ energy). `slot`: -1 = add the energy of the current pose with the current
+// rotations into energy[*iter - 1] when *iter > 0 (fused into the rotation step of the next
+// flip-flop); -2 = no energy; >= 0 = into energy[slot]. write_rot = false: energy only.
+void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st);
+// b into r[0] (residual = false) or r0 = b - A x (residual = true); zeroes the solver scalars;
+// (*iter)++.
+void launch_rhs(const System& s, bool residual, cudaStream_t st);
+
+// x -> R x + t on every node that is not anchored (R9 row-major, centred frame).
+void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st);
+// out[j] = B_j x (m handles).
+void launch_handle_positions(const System& s, float4* out, cudaStream_t st);
+// disp[i] = x_i - rest_i.
+void launch_displacement(const System& s, float4* disp, cudaStream_t st);
+
+// Can this build's kernels run on the current device? (no image for its architecture, ...)
+cudaError_t probe_kernels();
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,127 @@
+#include "multigrid.h"
+
+#include <larap/errors.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <unordered_map>
+
+#include "parallel.h"
+
+namespace larap {
+namespace cuda {
+
+double jacobi_lambda_max(const SparseRows& A, const Eigen::VectorXd& diag) {
+  const Eigen::Index n = A.rows();
+  Eigen::VectorXd v = Eigen::VectorXd::Random(n).cwiseAbs() + Eigen::VectorXd::Constant(n, 0.1);
+  double lam = 2.0;
+  for (int it = 0; it < 40; ++it) {
+    Eigen::VectorXd w = (A * v).cwiseQuotient(diag);
+    lam = w.norm() / std::max(v.norm(), 1e-300);
+    v = w / std::max(w.norm(), 1e-300);
+  }
+  return 1.05 * lam;
+}
+
+int aggregate(const Lattice& lattice, int shift, std::vector<int>& agg) {
+  const int n = int(lattice.num_nodes());
+  std::unordered_map<int64_t, int> ids;
+  ids.reserve(size_t(n) / 4 + 16);
+  agg.assign(size_t(n), 0);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3i& c = lattice.node_coords[size_t(i)];
+    const int64_t key =
+        (int64_t(c.x() >> shift) << 42) | (int64_t(c.y() >> shift) << 21) | int64_t(c.z() >> shift);
+    agg[size_t(i)] = ids.emplace(key, int(ids.size())).first->second;
+  }
+  return int(ids.size());
+}
+
+std::vector<float> dense_inverse(const Eigen::MatrixXd& A) {
+  const int nc = int(A.rows());
+  Eigen::LLT<Eigen::MatrixXd> llt(A);
+  if (llt.info() != Eigen::Success) throw DeviceError("the coarse lattice system is not positive definite");
+  Eigen::MatrixXd inv(nc, nc);
+  constexpr int kCols = 64;
+  const int nb = (nc + kCols - 1) / kCols;
+  const auto solve_block = [&](int64_t b) {  // columns [64 b, 64 b + 64) of the inverse
+    const int c0 = int(b) * kCols, w = std::min(kCols, nc - c0);
+    Eigen::MatrixXd X = Eigen::MatrixXd::Zero(nc, w);
+    for (int k = 0; k < w; ++k) X(c0 + k, k) = 1.0;
+    llt.matrixL().solveInPlace(X);
+    llt.matrixU().solveInPlace(X);
+    inv.middleCols(c0, w) = X;
+  };
+  parallel_for(nb, solve_block, 1);
+  std::vector<float> out(size_t(nc) * nc);
+  for (int r = 0; r < nc; ++r)
+    for (int c = 0; c < nc; ++c) out[size_t(r) * nc + c] = float(0.5 * (inv(r, c) + inv(c, r)));
+  return out;
+}
+
+Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double lam_max, int mg_coarse_max,
+                          int mg_levels) {
+  const int n = int(lattice.num_nodes());
+  Multigrid mg;
+  int nc = aggregate(lattice, 1, mg.agg);
+  mg.shift = 1;
+  mg.three_levels = mg_levels == 3 || (mg_levels != 2 && nc > mg_coarse_max);
+  if (!mg.three_levels) {
+    for (int shift = 2; nc > mg_coarse_max && shift < 31; ++shift) {
+      nc = aggregate(lattice, shift, mg.agg);
+      mg.shift = shift;
+    }
+  }
+  mg.nc = nc;
+  mg.omega = float(4.0 / (3.0 * lam_max));
+  // Ac = P^T A P (sparse, double)
+  SparseRows Ac(nc, nc);
+  {
+    std::vector<Eigen::Triplet<double>> tr;
+    tr.reserve(size_t(A.nonZeros()));
+    for (int i = 0; i < n; ++i)
+      for (SparseRows::InnerIterator it(A, i); it; ++it)
+        tr.emplace_back(mg.agg[size_t(i)], mg.agg[size_t(it.col())], it.value());
+    Ac.setFromTriplets(tr.begin(), tr.end());
+    Ac.makeCompressed();
+  }
+  if (!mg.three_levels) {
+    mg.ainv = dense_inverse(Eigen::MatrixXd(Ac));
+    return mg;
+  }
+  // Level 2: level-1 nodes grouped by fine coord >> shift2 (nested in level 1).
+  std::vector<int> aggf2;
+  int nc2 = 0;
+  for (int shift = 2; shift < 31; ++shift) {
+    nc2 = aggregate(lattice, shift, aggf2);
+    if (nc2 <= mg_coarse_max) break;
+  }
+  mg.nc2 = nc2;
+  mg.agg2.assign(size_t(nc), 0);
+  for (int i = 0; i < n; ++i) mg.agg2[size_t(mg.agg[size_t(i)])] = aggf2[size_t(i)];
+  Eigen::MatrixXd Ac2 = Eigen::MatrixXd::Zero(nc2, nc2);
+  mg.c_val.resize(size_t(Ac.nonZeros()));
+  mg.c_minv.assign(size_t(nc), 1.f);
+  Eigen::VectorXd cd = Eigen::VectorXd::Ones(nc);
+  for (int c = 0; c < nc; ++c)
+    for (int q = Ac.outerIndexPtr()[c]; q < Ac.outerIndexPtr()[c + 1]; ++q) {
+      const int j = Ac.innerIndexPtr()[q];
+      const double v = Ac.valuePtr()[q];
+      mg.c_val[size_t(q)] = float(v);
+      if (j == c) cd[c] = v;
+      Ac2(mg.agg2[size_t(c)], mg.agg2[size_t(j)]) += v;
+    }
+  for (int c = 0; c < nc; ++c) {
+    if (!(cd[c] > 0.0)) throw DeviceError("the coarse lattice system is not positive definite");
+    mg.c_minv[size_t(c)] = float(1.0 / cd[c]);
+  }
+  mg.omega1 = float(4.0 / (3.0 * jacobi_lambda_max(Ac, cd)));
+  mg.ainv = dense_inverse(Ac2);
+  mg.c_off.assign(Ac.outerIndexPtr(), Ac.outerIndexPtr() + nc + 1);
+  mg.c_col.assign(Ac.innerIndexPtr(), Ac.innerIndexPtr() + Ac.nonZeros());
+  return mg;
+}
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,56 @@
+// Host set-up of the CUDA backend's multilevel preconditioner (once per set_handles, double
+// precision), everything the device needs as plain arrays for the backend to upload.
+//
+// Level 1: aggregates = fine nodes with equal (node_coords >> shift), P piecewise constant,
+// Ac = P^T A P. Two levels (mg_levels 2, or automatic when the 2x2x2 aggregation has at most
+// mg_coarse_max nodes): the smallest shift >= 1 within that bound, Ac inverted densely. Three
+// levels (3, or automatic when 2x2x2 gives more): level 1 = 2x2x2 aggregates with Ac1 kept sparse
+// on the device and smoothed by damped Jacobi; level 2 = the smallest shift >= 2 within the
+// bound, Ac2 = P2^T Ac1 P2 inverted densely. Smoothing weights 4 / (3 lambda_max(D^-1 A)).
+// The cycle itself: solvers.cu; the maths and measurements: docs/cuda.md.
+#pragma once
+#include <larap/lattice.h>
+
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+#include <vector>
+
+namespace larap {
+namespace cuda {
+
+using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
+
+// An upper bound of lambda_max(D^-1 A) (D = diag): 1.05 x 40 steps of power iteration from a
+// positive start vector (Eigen's Random, so the sequence of calls fixes it).
+double jacobi_lambda_max(const SparseRows& A, const Eigen::VectorXd& diag);
+
+// Coarse id of every node when the nodes are grouped by (coords >> shift); returns the count.
+int aggregate(const Lattice& lattice, int shift, std::vector<int>& agg);
+
+// Dense inverse of a small SPD matrix, symmetrised, row-major float: one Cholesky factorisation,
+// then the triangular solves for blocks of 64 identity columns in parallel (parallel.h).
+// Throws DeviceError when the matrix is not positive definite.
+std::vector<float> dense_inverse(const Eigen::MatrixXd& A);
+
+struct Multigrid {
+  bool three_levels = false;
+  int shift = 1;            // level 1 = fine nodes grouped by coords >> shift
+  int nc = 0;               // level-1 nodes
+  std::vector<int> agg;     // #N: level-1 id of each fine node
+  float omega = 0.6f;       // fine smoothing weight
+  std::vector<float> ainv;  // dense inverse of the coarsest level (nc or nc2 squared), row-major
+  // Three levels only:
+  int nc2 = 0;                       // level-2 nodes
+  std::vector<int> agg2;             // nc: level-2 id of each level-1 node
+  std::vector<int> c_off, c_col;     // Ac1, CSR with its diagonal
+  std::vector<float> c_val, c_minv;  // its values, 1 / diag(Ac1)
+  float omega1 = 0.6f;               // level-1 smoothing weight
+};
+
+// The preconditioner of A (the fine system, #N rows) with lam_max = jacobi_lambda_max(A, ...).
+// mg_levels: 0 automatic, 2 or 3.
+Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double lam_max, int mg_coarse_max,
+                          int mg_levels);
+
+}  // namespace cuda
+}  // namespace larap

@@ -1,0 +1,233 @@
+# Run: PYTHONPATH=python /usr/bin/python3 -m pytest -q tests/python/test_farm_merge.py
+# The engine-neutral farm pieces without Blender: chunk plans, PC2 files, manifests and the merge's
+# refusal of missing, truncated, corrupt or foreign chunks.
+import os
+import struct
+
+import numpy as np
+import pytest
+
+from larap.farm import BakeJob, MergeError, parse_frames, plan_chunks, read_pc2, read_pc2_header, write_pc2
+from larap.farm.command import bind_command, chunk_command
+from larap.farm.manifest import chunk_dir, chunk_pc2_path, manifest_path, write_manifest
+from larap.farm.merge import frame_ranges, merge_bake, merged_path
+from larap.farm.pc2 import PC2Error, write_atomic
+
+
+def test_plan_covers_every_frame_once_with_clamped_preroll():
+    for first, last, size, pre in ((1, 100, 25, 3), (-5, 7, 4, 10), (10, 10, 1, 2), (1, 12, 5, 0)):
+        chunks = plan_chunks(first, last, size, pre)
+        frames = [f for c in chunks for f in range(c.start, c.end + 1)]
+        assert frames == list(range(first, last + 1))
+        assert all(1 <= c.frames <= size for c in chunks)
+        assert chunks[0].solve_start == first  # the first chunk is the one-process start
+        assert all(c.solve_start == max(first, c.start - pre) for c in chunks)
+
+
+def test_plan_and_frames_reject_bad_input():
+    with pytest.raises(ValueError, match="empty"):
+        plan_chunks(10, 1, 5)
+    with pytest.raises(ValueError, match="chunk_size"):
+        plan_chunks(1, 10, 0)
+    with pytest.raises(TypeError, match="preroll"):
+        plan_chunks(1, 10, 5, 1.5)
+    assert parse_frames("3-7") == (3, 7) and parse_frames("47") == (47, 47) and parse_frames("1..4") == (1, 4)
+    for bad in ("", "a-b", "7-3", "1-2-3"):
+        with pytest.raises(ValueError):
+            parse_frames(bad)
+    with pytest.raises(ValueError, match="mode"):
+        BakeJob("x.blend", ["A"], 1, 10, "out", mode="fast")
+    with pytest.raises(ValueError, match="object"):
+        BakeJob("x.blend", [], 1, 10, "out")
+    with pytest.raises(ValueError, match="warm_tol"):
+        BakeJob("x.blend", ["A"], 1, 10, "out", warm_tol=0.0)
+
+
+def test_pc2_round_trip_and_header_layout(tmp_path):
+    P = np.random.default_rng(1).normal(size=(4, 7, 3)).astype(np.float32)
+    path = str(tmp_path / "a.pc2")
+    write_pc2(path, P, 11)
+    raw = open(path, "rb").read()
+    assert len(raw) == 32 + 4 * 7 * 12
+    assert struct.unpack("<12siiffi", raw[:32]) == (b"POINTCACHE2\0", 1, 7, 11.0, 1.0, 4)
+    head, Q = read_pc2(path)
+    assert head == {"points": 7, "start": 11.0, "rate": 1.0, "samples": 4}
+    assert np.array_equal(P, Q)
+    assert os.listdir(tmp_path) == ["a.pc2"]  # no temporary file left
+    with pytest.raises(ValueError, match="not finite"):
+        write_pc2(str(tmp_path / "nan.pc2"), np.full((1, 2, 3), np.nan), 1)
+    with open(path, "r+b") as f:
+        f.truncate(100)
+    with pytest.raises(PC2Error, match="truncated"):
+        read_pc2_header(path)
+
+
+def test_atomic_write_keeps_the_old_file_when_the_writer_dies(tmp_path):
+    path = str(tmp_path / "c.pc2")
+    write_pc2(path, np.zeros((1, 2, 3)), 1)
+    before = open(path, "rb").read()
+
+    def dies():
+        yield b"POINTCACHE2\0 half a file"
+        raise KeyboardInterrupt  # the task is killed mid-write
+
+    with pytest.raises(KeyboardInterrupt):
+        write_atomic(path, dies())
+    assert open(path, "rb").read() == before
+    assert os.listdir(tmp_path) == ["c.pc2"]
+
+
+def test_every_command_line_exits_nonzero_on_failure():
+    job = BakeJob("/s/shot.blend", ["Body", "Prop A"], 1, 10, "/s/out", chunk_size=4, preroll=2, warm_tol=1e-7)
+    cmds = [chunk_command(job, c, installed=i) for c in job.chunks() for i in (False, True)]
+    cmds += [bind_command("/s/shot.blend", ["Body"], 1, "/s/out/bound.blend", installed=i) for i in (False, True)]
+    for cmd in cmds:
+        k = cmd.index("--python-exit-code")
+        assert cmd[k + 1] == "1" and cmd[:2] == ["blender", "-b"]
+        assert cmd.index("--python-exit-code") < cmd.index("--")
+    c = chunk_command(job, job.chunks()[1])
+    tail = c[c.index("--") + 1:]
+    assert tail[:4] == ["--object", "Body", "--object", "Prop A"]
+    assert tail[tail.index("--chunk") + 1] == "5-8" and tail[tail.index("--preroll") + 1] == "2"
+
+
+# ------------------------------------------------------------------------------------------------
+# The merge
+
+def _fake_bake(tmp_path, chunk_size=4, objects=("Bar", "Odd name/1")):
+    """A finished bake of frames 1-10 written without Blender: frame f of object k is filled with f + 100k."""
+    job = BakeJob(blend="shot.blend", objects=list(objects), frame_start=1, frame_end=10,
+                  out_dir=str(tmp_path), chunk_size=chunk_size)
+    os.makedirs(chunk_dir(job.out_dir), exist_ok=True)
+    for c in job.chunks():
+        counts = {}
+        for k, name in enumerate(job.objects):
+            P = np.empty((c.frames, 5 + k, 3), np.float32)
+            for i, f in enumerate(range(c.start, c.end + 1)):
+                P[i] = f + 100 * k
+            write_pc2(chunk_pc2_path(job.out_dir, name, c), P, c.start)
+            counts[name] = P.shape[1]
+        write_manifest(job.out_dir, c, job.signature(), counts, {"bind": 0.0, "solve": 0.0, "write": 0.0})
+    return job
+
+
+def test_merge_joins_chunks_in_frame_order(tmp_path):
+    job = _fake_bake(tmp_path)
+    summary = merge_bake(job)
+    for k, name in enumerate(job.objects):
+        head, P = read_pc2(merged_path(job.out_dir, name))
+        assert head["start"] == 1.0 and head["samples"] == 10 and head["points"] == 5 + k
+        assert np.array_equal(P[:, 0, 0], np.arange(1, 11) + 100 * k)
+        assert summary["objects"][name]["file"] == os.path.basename(merged_path(job.out_dir, name))
+    assert "/" not in os.path.basename(merged_path(job.out_dir, "Odd name/1"))
+
+
+def _refused(job, *match):
+    merged = merged_path(job.out_dir, job.objects[0])
+    before = open(merged, "rb").read() if os.path.exists(merged) else None
+    with pytest.raises(MergeError) as info:
+        merge_bake(job)
+    for m in match:
+        assert m in str(info.value), str(info.value)
+    after = open(merged, "rb").read() if os.path.exists(merged) else None
+    assert after == before  # an earlier merged cache is never touched
+    return info.value
+
+
+def test_merge_names_missing_frames(tmp_path):
+    job = _fake_bake(tmp_path)
+    merge_bake(job)
+    os.remove(manifest_path(job.out_dir, job.chunks()[1]))  # chunk 5-8 never finished
+    err = _refused(job, "frames 5-8 of 1-10", "chunk 5-8: not finished")
+    assert err.missing_frames == [5, 6, 7, 8]
+
+
+def test_merge_refuses_a_truncated_chunk(tmp_path):
+    job = _fake_bake(tmp_path)
+    path = chunk_pc2_path(job.out_dir, "Bar", job.chunks()[2])
+    with open(path, "r+b") as f:
+        f.truncate(os.path.getsize(path) - 7)
+    _refused(job, "frames 9-10", "chunk 9-10", "truncated")
+
+
+def test_merge_refuses_a_corrupt_chunk_of_the_right_size(tmp_path):
+    job = _fake_bake(tmp_path)
+    merge_bake(job)
+    path = chunk_pc2_path(job.out_dir, "Odd name/1", job.chunks()[0])
+    raw = bytearray(open(path, "rb").read())
+    raw[40] ^= 0x01
+    open(path, "wb").write(bytes(raw))
+    _refused(job, "frames 1-4", "corrupt")
+
+
+def test_merge_refuses_chunks_of_another_bake(tmp_path):
+    _fake_bake(tmp_path)
+    other = BakeJob(blend="shot.blend", objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
+                    out_dir=str(tmp_path), chunk_size=4, preroll=5)
+    _refused(other, "another bake", "preroll")
+    other = BakeJob(blend="shot.blend", objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
+                    out_dir=str(tmp_path), chunk_size=5)
+    _refused(other, "frames 1-10", "not finished")
+
+
+def test_merge_ignores_temporary_files_of_killed_writers(tmp_path):
+    job = _fake_bake(tmp_path)
+    junk = chunk_pc2_path(job.out_dir, "Bar", job.chunks()[0]) + ".tmp-999-dead"
+    open(junk, "wb").write(b"POINTCACHE2\0garbage")
+    merge_bake(job)
+    _, P = read_pc2(merged_path(job.out_dir, "Bar"))
+    assert np.array_equal(P[:, 0, 0], np.arange(1, 11))
+
+
+def test_frame_ranges():
+    assert frame_ranges([9, 1, 2, 3, 7, 10]) == "1-3, 7, 9-10"
+
+
+NODE_COMPILE = r"""
+const vm = require("vm"), fs = require("fs"), path = require("path");
+const author = {
+  Task: (name, type) => ({ name, cmds: [], addCommand(c) { this.cmds.push(c); }, addDependency() {} }),
+  Command: (name, parameters) => parameters,
+};
+const ctx = vm.createContext({ author, path: path.posix, print: () => {} });
+vm.runInContext(fs.readFileSync(process.argv[1], "utf8"), ctx);
+const tasks = [];
+ctx.compileJob({ settings: JSON.parse(process.argv[2]), addTask: (t) => tasks.push(t) });
+console.log(JSON.stringify(tasks.map((t) => ({ name: t.name, args: t.cmds[0].args }))));
+"""
+
+
+def test_flamenco_job_type_matches_the_python_commands():
+    """The Flamenco job type builds the same chunk arguments as larap.farm.command, and its merge
+    task's arguments describe the same bake (same signature) as its chunks."""
+    import json
+    import shutil
+    import subprocess
+    from larap.farm.command import chunk_args
+    if shutil.which("node") is None:
+        pytest.skip("node is not installed (scripts/setup installs nodejs)")
+    script = os.path.join(os.path.dirname(__file__), "..", "..", "flamenco", "larap-bake.js")
+    settings = {"frames": "2-11", "chunk_size": 4, "preroll": 2, "objects": '["Body", "Prop, A"]',
+                "bake_output": "/farm/bake", "device": "cpu", "mode": "warm", "warm_tol": 1e-7, "tol": 1e-10,
+                "max_iterations": 500, "bind": False, "blendfile": "/farm/shot.blend"}
+    out = subprocess.run(["node", "-e", NODE_COMPILE, script, json.dumps(settings)], capture_output=True,
+                         text=True, check=True).stdout
+    tasks = json.loads(out)
+    job = BakeJob("/farm/shot.blend", ["Body", "Prop, A"], 2, 11, "/farm/bake", chunk_size=4, preroll=2,
+                  warm_tol=1e-7, tol=1e-10, max_iterations=500, device="cpu")
+
+    def after_dashes(args):
+        tail = args[args.index("--") + 1:]
+        return [str(float(v)) if i > 0 and tail[i - 1] in ("--tol", "--warm-tol") else v for i, v in enumerate(tail)]
+
+    chunks = [t for t in tasks if t["name"].startswith("larap-chunk-")]
+    assert [t["name"] for t in chunks] == [f"larap-chunk-{c}" for c in job.chunks()]
+    for t, c in zip(chunks, job.chunks()):
+        assert sorted(after_dashes(t["args"])) == sorted(after_dashes(["--"] + chunk_args(job, c)))
+    import argparse
+    from larap.farm import cli
+    merge = after_dashes(tasks[-1]["args"])
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    cli._job_args(sub.add_parser("merge"))
+    assert cli._job(parser.parse_args(merge)).signature() == job.signature()

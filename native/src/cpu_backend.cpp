@@ -118,8 +118,9 @@ class CpuBackend final : public Backend {
     for (int64_t i = 0; i < n; ++i) {
       const ComponentMotion& mo = motions[lat_.component[i]];
       if (!mo.active || hs_.anchored[i]) continue;
-      const Eigen::Vector3d x = (from_rest ? lat_.rest : pose_).row(i).transpose();
-      pose_.row(i) = (mo.R * x + mo.t).transpose();
+      // The motion maps centred coordinates (the moments are centred at origin).
+      const Eigen::Vector3d x = (from_rest ? lat_.rest : pose_).row(i).transpose() - hs_.origin;
+      pose_.row(i) = (mo.R * x + mo.t + hs_.origin).transpose();
     }
   }
 

@@ -79,6 +79,21 @@ def test_one_rigid_motion_of_every_group_gives_the_rigid_pose(tube, device, weig
     assert err <= 1e-3 * diagonal(V), err
 
 
+@pytest.mark.parametrize("offset", [0.0, 50.0])
+def test_the_warm_start_alone_gives_a_rigid_pose(tube, device, offset):
+    """One rigid motion of every group: the per-component warm start (iterations=0) already is
+    the rigid pose, also for a model far from the coordinate origin (the motions are fitted in
+    coordinates centred at the handle system's origin and must be applied there)."""
+    V, F = tube
+    V = V + [offset, offset / 2, 0.0]
+    d = larap.Deformer(V, F, cells=800, device=device)
+    d.set_handle_groups(ends(V))
+    M = affine(rotation([1, 2, 0.5], 70), t=(0.3, -1.0, 2.0), pivot=V.mean(0))
+    X = d.solve(transforms=np.stack([M, M]), iterations=0)
+    err = np.linalg.norm(X - apply(M, V), axis=1).max()
+    assert err <= tol(device, 1e-7, 1e-5) * diagonal(V), err
+
+
 def miss_of_small_group(V, F, device, base_size):
     """A 12-vertex tip group turned, next to a base group of `base_size` vertices held still,
     spread over the same region (the first 336 vertices along the tube) whatever their number,

@@ -8,8 +8,13 @@ Table 1 (the handle-group issue's check): one mesh and lattice, 4 (or --groups) 
 few vertices against the same regions holding many; a pose = 5 flip-flop iterations from a warm
 start after a move of every group, plus the transfer into a float32 host array (on CUDA also
 the time with the positions left on the device). Medians of --repeat poses, all in one run, so
-compare the ratios. Table 2 (--quality): time to quality, the milliseconds until the energy is
-within 0.1% of the converged energy, at a few lattice sizes.
+compare the ratios. --mid N adds a row of N vertices per group (e.g. 10% of the mesh in all).
+On CUDA, --copy compares the ways the result reaches the host array (LARAP_CUDA_COPY[:chunk],
+docs/cuda.md) on the 'many' row. Table 2 (--quality): time to quality, the milliseconds until
+the energy is within 0.1% of the converged energy, at a few lattice sizes; the converged energy
+comes from the CPU backend (--reference cpu) or from a long solve on the benchmarked device
+(--reference device: 3000 flip-flops, for lattices where the CPU's direct solver is too slow).
+Faces: the tube's quads split into triangles unless --quads.
 """
 from __future__ import annotations
 
@@ -26,11 +31,17 @@ import larap
 from larap import shapes
 
 
-def tube_with_vertices(n_wanted: int):
-    """A closed tube (length 8, radius 0.5) of about n_wanted vertices."""
+def tube_with_vertices(n_wanted: int, triangles: bool = True):
+    """A closed tube (length 8, radius 0.5) of about n_wanted vertices; quads split into two
+    triangles each when `triangles`."""
     segments = max(16, int(np.sqrt(n_wanted / 16.0) * 2))
     rings = max(16, n_wanted // segments)
-    return shapes.tube(length=8.0, radius=0.5, segments=segments, rings=rings)
+    V, F = shapes.tube(length=8.0, radius=0.5, segments=segments, rings=rings)
+    if not triangles:
+        return V, F
+    quads = np.array([f for f in F if len(f) == 4], np.int64)
+    tris = [np.array([f for f in F if len(f) == 3], np.int64), quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]
+    return V, np.concatenate(tris)
 
 
 def regions(V, groups: int, per_group: int | None):
@@ -83,12 +94,13 @@ def time_poses(d, V, groups, repeat, device):
 
 
 def table_handles(args):
-    V, F = tube_with_vertices(args.vertices)
+    V, F = tube_with_vertices(args.vertices, not args.quads)
     t0 = time.perf_counter()
     d = larap.Deformer(V, F, cells=args.cells, device=args.device)
     t_bind = (time.perf_counter() - t0) * 1e3
     rows = []
-    for label, per in (("few", args.few), ("many", None)):
+    sizes = [("few", args.few)] + ([("mid", args.mid)] if args.mid else []) + [("many", None)]
+    for label, per in sizes:
         groups = regions(V, args.groups, per)
         t0 = time.perf_counter()
         d.set_handle_groups(groups)
@@ -102,22 +114,61 @@ def table_handles(args):
     for r in rows:
         print(f"{r['label']:>5} {r['handles']:>8} ({r['share']:4.1f}%) | {r['set_ms']:20.1f} | {r['host']:17.2f} | "
               f"{r['dev']:17.3f} | {r['start']:13.3f}")
-    ratio = rows[1]["host"] / rows[0]["host"]
+    ratio = rows[-1]["host"] / rows[0]["host"]
     print(f"ratio many/few (into host): {ratio:.3f}")
-    return len(V), len(F), d.num_nodes, rows, ratio
+    copies = []
+    if args.device == "cuda" and args.copy:
+        groups = regions(V, args.groups, None)
+        for spec in args.copy.split(","):
+            mode, _, chunk = spec.partition(":")
+            os.environ["LARAP_CUDA_COPY"] = mode
+            if chunk:
+                os.environ["LARAP_CUDA_COPY_CHUNK"] = chunk
+            else:
+                os.environ.pop("LARAP_CUDA_COPY_CHUNK", None)
+            d.set_handle_groups(groups)  # the backend reads its options here
+            out = np.empty((len(V), 3), np.float32)
+            host, transfer = [], []
+            for r in range(args.repeat + 2):
+                d.solve(transforms=transforms(V, groups, r + 1), iterations=5, out=out)  # warm
+                t0 = time.perf_counter()
+                d.solve(transforms=transforms(V, groups, r + 1.5), iterations=5, out=out)
+                ms = (time.perf_counter() - t0) * 1e3
+                if r >= 2:
+                    host.append(ms)
+                    transfer.append(d.stats["ms_transfer"])
+            ref = d.solve_on_device(transforms=transforms(V, groups, 9), iterations=0)
+            del ref
+            X = d.solve(transforms=transforms(V, groups, 9), iterations=0, out=out)
+            copies.append(dict(spec=spec, host=statistics.median(host), transfer=statistics.median(transfer),
+                               finite=bool(np.isfinite(X).all())))
+        os.environ.pop("LARAP_CUDA_COPY", None)
+        os.environ.pop("LARAP_CUDA_COPY_CHUNK", None)
+        d.set_handle_groups(groups)
+        print(f"\ncopy into the host array ('many' row, float32, {len(V)} vertices = {12 * len(V) / 1e6:.1f} MB)")
+        print(f"{'LARAP_CUDA_COPY[:chunk]':>24} | {'pose into host ms':>17} | {'ms_transfer':>11}")
+        for c in copies:
+            print(f"{c['spec']:>24} | {c['host']:17.3f} | {c['transfer']:11.3f}" + ("" if c["finite"] else "  NOT FINITE"))
+    return len(V), len(F), d.num_nodes, rows, ratio, copies
 
 
 def time_to_quality(args, cells):
-    V, F = tube_with_vertices(args.vertices)
+    V, F = tube_with_vertices(args.vertices, not args.quads)
     groups = regions(V, args.groups, None)
     d = larap.Deformer(V, F, cells=cells, device=args.device)
     d.set_handle_groups(groups)
     T0, T1 = transforms(V, groups, 1), transforms(V, groups, 4)
-    ref = larap.Deformer(V, F, cells=cells, device="cpu")
-    ref.set_handle_groups(groups)
-    ref.solve(transforms=T0, iterations=200, tol=1e-10)
-    ref.solve(transforms=T1, iterations=500, tol=1e-12)
-    target = ref.stats["energy"][-1] * 1.001
+    if args.reference == "cpu":
+        ref = larap.Deformer(V, F, cells=cells, device="cpu")
+        ref.set_handle_groups(groups)
+        ref.solve(transforms=T0, iterations=200, tol=1e-10)
+        ref.solve(transforms=T1, iterations=500, tol=1e-12)
+        converged = ref.stats["energy"][-1]
+    else:  # a long solve on the device itself
+        d.solve(transforms=T0, iterations=200)
+        d.solve(transforms=T1, iterations=3000)
+        converged = min(d.stats["energy"])
+    target = converged * 1.001
     for its in (1, 2, 3, 5, 8, 12, 20, 30, 50, 80, 120, 200):
         d.reset()
         d.solve(transforms=T0, iterations=60)
@@ -126,8 +177,8 @@ def time_to_quality(args, cells):
         d.solve(transforms=T1, iterations=its, out=out)
         ms = (time.perf_counter() - t0) * 1e3
         if d.stats["energy"][-1] <= target:
-            return d.num_nodes, its, ms
-    return d.num_nodes, None, float("nan")
+            return d.num_nodes, its, ms, len(d.handles)
+    return d.num_nodes, None, float("nan"), len(d.handles)
 
 
 def main():
@@ -137,16 +188,23 @@ def main():
     p.add_argument("--cells", type=int, default=7700, help="about 10k nodes on the default tube")
     p.add_argument("--groups", type=int, default=4)
     p.add_argument("--few", type=int, default=100, help="vertices per group in the 'few' row")
+    p.add_argument("--mid", type=int, default=0, help="vertices per group in a middle row (0: none)")
+    p.add_argument("--quads", action="store_true", help="keep the tube's quads (default: triangles)")
+    p.add_argument("--copy", default="overlap:65536,overlap:262144,staged:262144,direct",
+                   help="CUDA: LARAP_CUDA_COPY[:chunk] variants to compare ('' = none)")
+    p.add_argument("--reference", default="cpu", choices=["cpu", "device"],
+                   help="where the converged energy of the time-to-quality table comes from")
     p.add_argument("--repeat", type=int, default=7)
     p.add_argument("--quality", default="", help="comma-separated cell counts for the time-to-quality table")
     p.add_argument("--record", default="", help="append the tables (Markdown) to this file")
     args = p.parse_args()
-    n, f, nodes, rows, ratio = table_handles(args)
+    n, f, nodes, rows, ratio, copies = table_handles(args)
     quality = []
     for cells in [int(c) for c in args.quality.split(",") if c]:
         quality.append(time_to_quality(args, cells))
-        nn, its, ms = quality[-1]
-        print(f"time to quality (0.1% of converged energy), {nn} nodes: {its} iterations, {ms:.2f} ms")
+        nn, its, ms, m = quality[-1]
+        print(f"time to quality (0.1% of converged energy, reference {args.reference}), {nn} nodes, "
+              f"{m} handle vertices in {args.groups} groups: {its} iterations, {ms:.2f} ms into a host array", flush=True)
     if args.record:
         when = datetime.date.today().isoformat()
         with open(args.record, "a") as fh:
@@ -157,7 +215,11 @@ def main():
             for r in rows:
                 fh.write(f"| {r['handles']} | {r['share']:.1f}% | {r['set_ms']:.1f} | {r['host']:.2f} | {r['dev']:.3f} |\n")
             fh.write(f"\nRatio many/few: **{ratio:.3f}**.\n")
-            for nn, its, ms in quality:
+            if copies:
+                fh.write("\n| LARAP_CUDA_COPY[:chunk] | pose into host (ms) | ms_transfer |\n|---|---|---|\n")
+                for c in copies:
+                    fh.write(f"| {c['spec']} | {c['host']:.3f} | {c['transfer']:.3f} |\n")
+            for nn, its, ms, m in quality:
                 fh.write(f"\nTime to quality at {nn} nodes: {its} iterations, {ms:.2f} ms.\n")
 
 

@@ -71,7 +71,7 @@ struct Deformer::Impl {
   std::unique_ptr<Backend> backend;              // the fine level
   Hierarchy hierarchy;                           // the coarse levels
   HandleSpec spec;            // the handle vertices, their groups and weights, rest positions
-  Eigen::Vector3d origin;     // centroid of the rest vertices: centres the handle sums
+  Eigen::Vector3d origin;     // centre of the rest lattice: centres the handle sums
   std::vector<uint8_t> fine_anchored;
   bool handles_set = false;
   bool auto_device = false;
@@ -114,7 +114,8 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   const Eigen::Vector3d ext = (V.colwise().maxCoeff() - V.colwise().minCoeff()).transpose();
   d.diagonal = ext.norm() > 0.0 ? ext.norm() : d.lattice.h;
   const Eigen::RowVector3d centroid = V.colwise().mean();
-  d.origin = centroid.transpose();
+  // The handle sums are centred at the lattice's centre (the CUDA backend keeps its float frame there).
+  d.origin = 0.5 * (d.lattice.rest.colwise().minCoeff() + d.lattice.rest.colwise().maxCoeff()).transpose();
   d.size = std::sqrt((V.rowwise() - centroid).rowwise().squaredNorm().mean());
   if (!(d.size > 0.0)) d.size = d.lattice.h;
   t0 = Clock::now();

@@ -68,6 +68,10 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
     has_rest: BoolProperty(name="Has Rest", default=False,
                            description="The rest matrix was recorded (bind or handle creation)")
     enabled: BoolProperty(name="Enabled", default=True, description="Use this handle when solving")
+    weight: FloatProperty(name="Weight", default=1.0, min=0.0, soft_max=10.0, update=_redraw,
+                          description="How hard this handle pulls its vertices to their target, against the "
+                          "other handles: 1 pulls as hard as any other handle, however many vertices "
+                          "either has; 2 twice as hard")
     created_target: BoolProperty(default=False, description="LARAP created the target Empty (only such an Empty "
                                  "is ever deleted by LARAP, and only when asked)")
     # Whose world matrix ``rest_matrix`` is (a pointer follows renames): retargeting reads the old

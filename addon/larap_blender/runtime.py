@@ -33,7 +33,10 @@ class Runtime:
         self.rest_hash = ""
         self.out = None
         self.membership = {}  # vertex group -> sorted int64 indices (weight > 0)
+        self.membership_weights = {}  # vertex group -> their weights, aligned with membership
         self.membership_sig = None
+        self.membership_hash = ""  # content of the membership (ids and weights)
+        self.group_cache = None  # (key, disjoint groups, their vertex weights): targets.gather
         self.last_ms = 0.0
         self.stats = {}
         self.weights = ""  # weights the pose key was solved with ("": unknown)
@@ -55,14 +58,16 @@ class Runtime:
         self.engine_weights = None
         self.engine_gamma = None
 
-    def set_engine_state(self, handles, weights, gamma):
-        """Give the engine these handle ids (int64), weights and gamma, calling it only for what
-        changed. A call that raises leaves that entry unknown, so the next solve sets it again."""
+    def set_engine_state(self, pose, weights, gamma):
+        """Give the engine the handle groups of ``pose`` (targets.HandlePose), the weights and
+        gamma, calling it only for what changed. A call that raises leaves that entry unknown, so
+        the next solve sets it again."""
         d = self.deformer
-        if self.engine_handles is None or not np.array_equal(self.engine_handles, handles):
+        groups_key = (pose.key, pose.weights)
+        if self.engine_handles != groups_key:
             self.engine_handles = None
-            d.set_handles(handles)
-            self.engine_handles = handles.copy()
+            d.set_handle_groups(pose.groups, weights=list(pose.weights), vertex_weights=pose.vertex_weights)
+            self.engine_handles = groups_key
         if self.engine_weights != weights:
             self.engine_weights = None
             d.weights = weights

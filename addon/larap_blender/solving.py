@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """One solve: from the handle targets, through the engine, to the pose key.
 
-At each pose: :func:`targets.gather` gives the handle ids and where they should go; the runtime
-gives the engine only what changed (handles, weights, gamma); the engine solves into the
+At each pose: :func:`targets.gather` gives the handle groups and one transform per group; the
+runtime gives the engine only what changed (groups, weights, gamma); the engine solves into the
 runtime's float32 buffer ``rt.out``; :func:`mesh_data.write_pose` copies it into the pose key
 with one ``foreach_set``. :func:`current_pose` is the pose Bake and Apply use.
 
@@ -39,7 +39,7 @@ def pose_signature(obj):
     s = obj.larap
     h = hashlib.blake2b(digest_size=16)
     h.update(repr(target_signature(obj)).encode())
-    h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix))
+    h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix), float(x.weight))
                    for x in s.handles]).encode())
     h.update(repr((s.weights_final, float(s.gamma), int(s.iterations), s.resolution_mode, int(s.cells),
                    float(s.cell_size), s.bind_topology, s.shape_key)).encode())
@@ -101,30 +101,33 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     t0 = time.perf_counter()
     rt = ensure_runtime(obj, validate)
     d = rt.deformer
-    idx, tgt, warnings = gather(obj, rt, overrides)
+    pose = gather(obj, rt, overrides)
+    warnings = pose.warnings
     wname = _weights_name(s, weights)
     final = weights == "final"
-    lattice_only = lattice_only and not final and len(idx) > 0
+    lattice_only = lattice_only and not final and pose.count > 0
     engine_ms = 0.0
     with engine_errors("Solve failed"):
-        if len(idx) == 0:
+        if pose.count == 0:
             warnings.append("no usable handles: rest pose written")
             np.copyto(rt.out, rt.rest)
             rt.lattice_nodes = None
         else:
-            rt.set_engine_state(idx, wname, float(s.gamma))
+            rt.set_engine_state(pose, wname, float(s.gamma))
             if final:
                 # One pose per set of targets: from rest, to convergence (up to 10x the
                 # interactive iterations), so the same targets always give the same pose.
                 if from_rest:
                     d.reset()
                 cap = max(30, 10 * int(s.iterations)) if max_iterations is None else int(max_iterations)
-                d.solve(tgt, cap, out=rt.out, tol=FINAL_TOLERANCE if tol is None else float(tol))
+                d.solve(transforms=pose.transforms, iterations=cap, out=rt.out,
+                        tol=FINAL_TOLERANCE if tol is None else float(tol))
                 rt.lattice_nodes = None
             elif lattice_only:
-                rt.lattice_nodes = np.asarray(d.pose_lattice(tgt, int(s.iterations)), dtype=np.float32)
+                rt.lattice_nodes = np.asarray(d.pose_lattice(transforms=pose.transforms, iterations=int(s.iterations)),
+                                              dtype=np.float32)
             else:
-                d.solve(tgt, int(s.iterations), out=rt.out)
+                d.solve(transforms=pose.transforms, iterations=int(s.iterations), out=rt.out)
                 rt.lattice_nodes = None
             stats = dict(d.stats)
             rt.stats = stats
@@ -145,7 +148,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     rt.last_error = ""
     rt.warnings = warnings
     rt.target_sig = target_signature(obj) if not overrides else None
-    return SolveResult(rt.last_ms, engine_ms, warnings, wname, len(idx))
+    return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count)
 
 
 def current_pose(obj):

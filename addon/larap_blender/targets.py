@@ -3,8 +3,11 @@
 
 A handle (``Object.larap.handles``) is a vertex group that follows a target (an object, or a bone
 of an armature) since bind. At bind the target's world matrix is recorded as its rest
-(:func:`record_rest`); at each pose :func:`gather` maps the rest positions of every usable
-handle's vertices through the target's motion since then, expressed in the mesh's local space.
+(:func:`record_rest`); at each pose :func:`gather` gives the engine one handle group per usable
+handle (its vertices, first handle wins where groups overlap; the vertex-group weights as a soft
+falloff; the handle's Weight) and one transform per group: the target's motion since bind,
+expressed in the mesh's local space. The groups are rebuilt only when the usable handles or
+their vertex groups change; a pose costs nothing per handle vertex in Python.
 Picking another target for a bound handle keeps the pose (:func:`retarget_keep_pose`): the new
 target's rest is recorded where the handle's vertices are now, so nothing jumps.
 :func:`target_signature` is what a solve was made from, so Live can skip a solve that would give
@@ -14,6 +17,7 @@ The runtime (runtime.py) caches the vertex-group membership; this module reads a
 cache but never builds or drops a runtime.
 """
 import contextlib
+import hashlib
 
 import bpy
 import numpy as np
@@ -184,23 +188,63 @@ def on_target_changed(handle):
 
 def membership(obj, rt):
     """{vertex group: sorted int64 vertex ids (weight > 0)} of the enabled handles, cached in the
-    runtime ``rt`` until the set of handle groups changes (or the runtime asks for a refresh)."""
+    runtime ``rt`` until the set of handle groups changes (or the runtime asks for a refresh);
+    ``rt.membership_weights`` holds their weights, aligned with the ids."""
     s = obj.larap
     names = tuple(h.vertex_group for h in s.handles if h.enabled and h.vertex_group)
     available = tuple(nm for nm in names if nm in obj.vertex_groups)
     if rt.membership_sig != available:
         weights = vertex_group_weights(obj, available)
         rt.membership = {nm: np.flatnonzero(w > 0.0) for nm, w in weights.items()}
+        rt.membership_weights = {nm: weights[nm][rt.membership[nm]].astype(np.float64) for nm in weights}
         rt.membership_sig = available
+        h = hashlib.blake2b(digest_size=16)
+        for nm in available:
+            h.update(nm.encode())
+            h.update(rt.membership[nm].tobytes())
+            h.update(rt.membership_weights[nm].tobytes())
+        rt.membership_hash = h.hexdigest()  # what the groups hold: same content, same engine groups
     return rt.membership
 
 
+class HandlePose:
+    """What one pose gives the engine: handle groups (rebuilt only when ``key`` changes) and one
+    4x4 transform per group."""
+
+    def __init__(self, key, groups, vertex_weights, weights, transforms, warnings):
+        self.key = key                        # identifies groups + vertex_weights
+        self.groups = groups                  # list of int64 vertex-id arrays, disjoint
+        self.vertex_weights = vertex_weights  # list of float64 arrays aligned with groups
+        self.weights = weights                # tuple of the handles' Weight
+        self.transforms = transforms          # (G, 4, 4) float64, mesh-local
+        self.warnings = warnings
+
+    @property
+    def count(self):
+        """Handle vertices that pull (all groups)."""
+        return int(sum(len(g) for g in self.groups))
+
+
+def _resolve_groups(rt, names, n):
+    """Disjoint groups for the handles' vertex groups `names` (in order; the first handle wins a
+    vertex two groups share), with their vertex-group weights."""
+    taken = np.zeros(n, dtype=bool)
+    groups, vweights = [], []
+    for nm in names:
+        ids, w = rt.membership[nm], rt.membership_weights[nm]
+        free = ~taken[ids]
+        groups.append(np.ascontiguousarray(ids[free]))
+        vweights.append(np.ascontiguousarray(w[free]))
+        taken[ids] = True
+    return groups, vweights
+
+
 def gather(obj, rt, overrides=None):
-    """Handle indices (unique, first group wins) and their target positions; warnings for skipped handles."""
+    """The HandlePose of the object's usable handles now; warnings name the skipped ones."""
     s = obj.larap
     groups = membership(obj, rt)
     warnings = []
-    idx_parts, tgt_parts = [], []
+    names, weights, maps = [], [], []
     for h in s.handles:
         if not h.enabled:
             continue
@@ -221,15 +265,18 @@ def gather(obj, rt, overrides=None):
         except LarapError as exc:
             warnings.append("%s; skipped" % exc)
             continue
-        p = rt.rest[idx].astype(np.float64)
-        idx_parts.append(idx)
-        tgt_parts.append(p @ local[:3, :3].T + local[:3, 3])
-    if not idx_parts:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), warnings
-    idx = np.concatenate(idx_parts)
-    tgt = np.concatenate(tgt_parts)
-    uniq, first = np.unique(idx, return_index=True)
-    return uniq.astype(np.int64), np.ascontiguousarray(tgt[first]), warnings
+        if not np.isfinite(local).all() or abs(np.linalg.det(local[:3, :3])) < 1e-12:
+            warnings.append("handle %r skipped: its target is scaled to zero" % label)
+            continue
+        names.append(h.vertex_group)
+        weights.append(float(h.weight))
+        maps.append(local)
+    key = (rt.membership_hash, tuple(names))
+    if getattr(rt, "group_cache", None) is None or rt.group_cache[0] != key:
+        rt.group_cache = (key,) + _resolve_groups(rt, names, len(rt.rest))
+    _, gr, vw = rt.group_cache
+    T = np.stack(maps) if maps else np.zeros((0, 4, 4))
+    return HandlePose(key, gr, vw, tuple(weights), T, warnings)
 
 
 def handle_problems(obj):

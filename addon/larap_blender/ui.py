@@ -129,7 +129,6 @@ class LARAP_UL_handles(bpy.types.UIList):
         ok = item.vertex_group in obj.vertex_groups and core.target_alive(item.target)
         row.prop(item, "enabled", text="")
         row.label(text=item.vertex_group or "(no group)", icon="GROUP_VERTEX" if ok else "ERROR")
-        # (issue 10: a handle's Weight goes here, before its target)
         row.prop(item, "target", text="")
 
 
@@ -196,7 +195,7 @@ def _draw_mesh(layout, context, obj):
         hb.prop(h, "target")
         if h.target is not None and h.target.type == "ARMATURE":
             hb.prop_search(h, "subtarget", h.target.data, "bones", text="Bone")
-        # (issue 10: the active handle's Weight goes here)
+        hb.prop(h, "weight")
         if h.vertex_group and h.vertex_group not in obj.vertex_groups:
             _label_lines(hb, "Vertex group %r missing (renamed or deleted?): pick it again" % h.vertex_group,
                          context=context)

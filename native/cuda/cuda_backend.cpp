@@ -1,8 +1,10 @@
 // CUDA backend, host side: the lattice system on the device (set up once per set_handles), the
-// flip-flop loop (one cooperative kernel, a CUDA graph, or plain launches), and the transfer with
-// its copy back through pinned memory. Around it, one file per concept: device memory and errors
+// per-pose handle work (O(groups) on the host and in uploads: handles.h), the flip-flop loop
+// (one cooperative kernel, a CUDA graph, or plain launches), and the transfer with its copy back
+// into the caller's array. Around it, one file per concept: device memory and errors
 // (device_memory.h), options (cuda_options.h), the multigrid set-up (multigrid.h), the kernels
-// (flip_flop.h, solvers.h, transfer.h). Design and figures: docs/cuda.md, docs/results-gpu.md.
+// (flip_flop.h, handles.h, solvers.h, transfer.h). Design and figures: docs/cuda.md,
+// docs/results-gpu.md.
 #ifdef LARAP_WITH_CUDA
 #include <cuda_runtime.h>
 #include <larap/errors.h>
@@ -13,6 +15,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <atomic>
 #include <mutex>
 #include <vector>
 
@@ -20,6 +23,7 @@
 #include "cuda_options.h"
 #include "device_memory.h"
 #include "flip_flop.h"
+#include "handles.h"
 #include "multigrid.h"
 #include "parallel.h"
 #include "solvers.h"
@@ -78,6 +82,7 @@ class CudaBackend final : public Backend {
         }
       sys_.nbr = nbr_.upload(nbr.data(), nbr.size(), stream_);
     }
+    comp_.upload(lattice.component.data(), lattice.component.size(), stream_);
     sys_.p = p_.reserve(n_);
     sys_.r[0] = r_[0].reserve(n_);
     sys_.r[1] = r_[1].reserve(n_);
@@ -123,21 +128,19 @@ class CudaBackend final : public Backend {
 
   void set_handles(const HandleSystem& hs) override {
     configure();
+    ready_ = false;
+    targets_set_ = false;
+    recentre(hs.origin);
     hs_ = hs;
     const int n = n_;
-    const int64_t m = hs.m;
     using SpR = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
     const auto trip = arap_triplets(lat_, hs);
     SpR A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
-    SpR B(m, n);
-    const auto bt = handle_triplets(hs);
-    B.setFromTriplets(bt.begin(), bt.end());
-    const SpR Bt = B.transpose();
-    A = SpR(A + SpR(Bt * B));
+    SpR M = handle_matrix(hs, n);  // B^T diag(alpha) B
+    M.makeCompressed();
+    A = SpR(A + M);
     A.makeCompressed();
-    SpR BtC = Bt;
-    BtC.makeCompressed();
 
     std::vector<float> aval(A.nonZeros()), minv(size_t(n), 1.f);
     Eigen::VectorXd diag = Eigen::VectorXd::Ones(n);
@@ -177,28 +180,35 @@ class CudaBackend final : public Backend {
       sys_.rem_col = rem_col_.upload(rcol.data(), rcol.size(), stream_);
       sys_.rem_val = rem_val_.upload(rval.data(), rval.size(), stream_);
     }
-    std::vector<float> btw(BtC.nonZeros()), bw(hs.weights.size());
-    for (int64_t q = 0; q < BtC.nonZeros(); ++q) btw[q] = float(BtC.valuePtr()[q]);
-    for (size_t q = 0; q < bw.size(); ++q) bw[q] = float(hs.weights[q]);
 
     graph_.reset();
     sys_.a_off = a_off_.upload(A.outerIndexPtr(), size_t(n) + 1, stream_);
     sys_.a_col = a_col_.upload(A.innerIndexPtr(), A.nonZeros(), stream_);
     sys_.a_val = a_val_.upload(aval.data(), aval.size(), stream_);
     sys_.minv = minv_.upload(minv.data(), minv.size(), stream_);
-    sys_.bt_off = bt_off_.upload(BtC.outerIndexPtr(), size_t(n) + 1, stream_);
-    sys_.bt_handle = bt_h_.upload(BtC.innerIndexPtr(), BtC.nonZeros(), stream_);
-    sys_.bt_w = bt_w_.upload(btw.data(), btw.size(), stream_);
-    sys_.m = int(m);
-    sys_.stencil = hs.stencil;
-    sys_.b_ids = b_ids_.upload(hs.ids.data(), hs.ids.size(), stream_);
-    sys_.b_w = b_w_.upload(bw.data(), bw.size(), stream_);
+    // The handle term: M in double, q, the per-node group entries; H zero until set_targets.
+    sys_.m_off = m_off_.upload(M.outerIndexPtr(), size_t(n) + 1, stream_);
+    sys_.m_col = m_col_.upload(M.innerIndexPtr(), size_t(M.nonZeros()), stream_);
+    sys_.m_val = m_val_.upload(M.valuePtr(), size_t(M.nonZeros()), stream_);
+    sys_.q = q_.upload(hs.q.data(), hs.q.size(), stream_);
+    entries_.node_off = e_off_.upload(hs.node_offsets.data(), hs.node_offsets.size(), stream_);
+    entries_.group = e_group_.upload(hs.entry_group.data(), hs.entry_group.size(), stream_);
+    entries_.q = e_q_.upload(hs.entry_q.data(), hs.entry_q.size(), stream_);
+    entries_.P = e_P_.upload(hs.entry_P.data(), hs.entry_P.size(), stream_);
+    maps_.reserve(size_t(12) * std::max<int64_t>(hs.num_groups(), 1));
+    float4* h = h_.reserve(size_t(n));
+    double* hd = hd_.reserve(size_t(3) * n);
+    LARAP_CUDA_CHECK(cudaMemsetAsync(h, 0, sizeof(float4) * n, stream_));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(hd, 0, sizeof(double) * 3 * n, stream_));
+    sys_.h = h;
+    sys_.hd = hd;
     sys_.anchored = anch_.upload(hs.anchored.data(), hs.anchored.size(), stream_);
     sys_.g = float(hs.gamma_eff);
     sys_.a = float(hs.anchor_weight);
-    sys_.targets = targets_.reserve(size_t(std::max<int64_t>(m, 1)));
-    hpos_.reserve(size_t(std::max<int64_t>(m, 1)));
-    h_targets_.reserve(size_t(std::max<int64_t>(m, 1)));
+    K_.assign(size_t(hs.num_components), 0.0);
+    K_total_ = 0.0;
+    upload_moment_chunks(hs);
+    motions_.reserve(size_t(16) * std::max(hs.num_components, 1));
 
     // Smoothing weight (mg) / Chebyshev bounds: lambda_max of D^-1 A.
     if (opt_.solver != cuda::Solver::Pcg) {
@@ -216,6 +226,35 @@ class CudaBackend final : public Backend {
     ready_ = true;
   }
 
+  // The handle nodes (q_i > 0) by lattice component, in chunks of at most one block, for the
+  // moments' reduction (handles.h).
+  void upload_moment_chunks(const HandleSystem& hs) {
+    const int nc = std::max(hs.num_components, 0);
+    std::vector<int> count(size_t(nc) + 1, 0);
+    for (int i = 0; i < n_; ++i)
+      if (hs.q[size_t(i)] > 0.0) ++count[size_t(lat_.component[size_t(i)]) + 1];
+    for (int c = 0; c < nc; ++c) count[size_t(c) + 1] += count[size_t(c)];
+    mc_nodes_host_.assign(size_t(count[size_t(nc)]), 0);
+    std::vector<int> fill(count.begin(), count.end() - 1);
+    for (int i = 0; i < n_; ++i)
+      if (hs.q[size_t(i)] > 0.0) mc_nodes_host_[size_t(fill[size_t(lat_.component[size_t(i)])]++)] = i;
+    mc_chunk_off_host_.assign(1, 0);
+    mc_comp_off_host_.assign(1, 0);
+    for (int c = 0; c < nc; ++c) {
+      for (int b = count[size_t(c)]; b < count[size_t(c) + 1]; b += cuda::kMomentBlock)
+        mc_chunk_off_host_.push_back(std::min(b + cuda::kMomentBlock, count[size_t(c) + 1]));
+      mc_comp_off_host_.push_back(int(mc_chunk_off_host_.size()) - 1);
+    }
+    moment_chunks_.chunks = int(mc_chunk_off_host_.size()) - 1;
+    moment_chunks_.components = nc;
+    moment_chunks_.nodes = mc_nodes_.upload(mc_nodes_host_.data(), mc_nodes_host_.size(), stream_);
+    moment_chunks_.chunk_off = mc_chunk_off_.upload(mc_chunk_off_host_.data(), mc_chunk_off_host_.size(), stream_);
+    moment_chunks_.comp_chunk_off = mc_comp_off_.upload(mc_comp_off_host_.data(), mc_comp_off_host_.size(), stream_);
+    mom_partial_.reserve(size_t(cuda::kMomentValues) * std::max(moment_chunks_.chunks, 1));
+    mom_out_.reserve(size_t(cuda::kMomentValues) * std::max(nc, 1));
+    h_moments_.reserve(size_t(cuda::kMomentValues) * std::max(nc, 1));
+  }
+
   void upload_multigrid(const cuda::Multigrid& mg) {
     // Default inner iterations: with 2x2x2 aggregates and a dense inverse of them (two levels)
     // one PCG step per flip-flop reaches quality sooner than two (more flip-flops, each cheaper);
@@ -230,7 +269,7 @@ class CudaBackend final : public Backend {
     sys_.rc = rc_.reserve(size_t(inner_) * mg.nc);
     sys_.zc = zc_.reserve(size_t(mg.nc));
     sys_.z = sys_.x_tmp;
-    sys_.q = sys_.w[0];
+    sys_.aq = sys_.w[0];
     sys_.pb[0] = sys_.s[0];
     sys_.pb[1] = sys_.s[1];
     sys_.omega = mg.omega;
@@ -264,47 +303,109 @@ class CudaBackend final : public Backend {
     for (int i = 0; i < n_; ++i) nodes.row(i) = from_f4(h[i]).transpose();
   }
 
-  void handle_positions(RowMatrixX3d& out) const override {
-    const int m = sys_.m;
-    out.resize(m, 3);
-    if (!ready_ || m == 0) {
-      out.setZero();
-      return;
+  // H and K of a pose. Group maps: G maps uploaded, H formed on the device from the per-node
+  // entries, K from the group moments on the host (O(groups x components)). Row targets: H and
+  // K on the host (O(m)), H uploaded.
+  void set_targets(const HandleTargets& targets) override {
+    if (!ready_) throw StateError("set_handles must come before set_targets");
+    const int n = n_;
+    if (targets.rows) {
+      handle_rhs(hs_, targets, H_rows_, K_);
+      std::vector<float4>& h = h_rows_;
+      h.resize(size_t(n));
+      for (int i = 0; i < n; ++i)
+        h[size_t(i)] = make_float4(float(H_rows_(i, 0)), float(H_rows_(i, 1)), float(H_rows_(i, 2)), 0.f);
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(h_.get(), h.data(), sizeof(float4) * n, cudaMemcpyHostToDevice, stream_));
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(hd_.get(), H_rows_.data(), sizeof(double) * 3 * n, cudaMemcpyHostToDevice,
+                                       stream_));
+    } else {
+      if (!targets.groups) throw StateError("handle targets: neither rows nor group maps");
+      const int64_t G = hs_.num_groups();
+      std::vector<double>& maps = h_maps_;
+      maps.resize(size_t(12) * G);
+      std::vector<Eigen::Matrix3d> A(static_cast<size_t>(G));
+      std::vector<Eigen::Vector3d> b(static_cast<size_t>(G));
+      for (int64_t g = 0; g < G; ++g) {
+        A[g] = targets.groups[g].leftCols<3>();
+        b[g] = A[g] * hs_.origin + targets.groups[g].col(3) - hs_.origin;
+        for (int k = 0; k < 9; ++k) maps[size_t(12 * g + k)] = A[g](k / 3, k % 3);
+        for (int k = 0; k < 3; ++k) maps[size_t(12 * g + 9 + k)] = b[g][k];
+      }
+      if (G > 0)
+        LARAP_CUDA_CHECK(cudaMemcpyAsync(maps_.get(), maps.data(), sizeof(double) * maps.size(),
+                                         cudaMemcpyHostToDevice, stream_));
+      cuda::launch_group_rhs(sys_, entries_, maps_.get(), h_.get(), hd_.get(), stream_);
+      LARAP_CUDA_CHECK(cudaGetLastError());
+      K_.assign(size_t(hs_.num_components), 0.0);
+      for (const auto& mo : hs_.moments) {
+        const Eigen::Matrix3d& Ag = A[size_t(mo.group)];
+        const Eigen::Vector3d& bg = b[size_t(mo.group)];
+        K_[size_t(mo.component)] +=
+            (Ag * mo.s2 * Ag.transpose()).trace() + 2.0 * bg.dot(Ag * mo.s1) + mo.s0 * bg.squaredNorm();
+      }
     }
-    std::vector<float4> h(static_cast<size_t>(m));
-    cuda::launch_handle_positions(sys_, hpos_.get(), stream_);
+    K_total_ = 0.0;
+    for (double k : K_) K_total_ += k;
+    targets_set_ = true;
+  }
+
+  // Per lattice component: a device reduction over the handle nodes, O(components) downloaded.
+  void moments(bool rest, std::vector<ComponentMoments>& out) override {
+    if (!ready_ || !targets_set_) throw StateError("set_handles and set_targets must come before moments");
+    const int nc = moment_chunks_.components;
+    cuda::launch_moments(sys_, rest ? sys_.rest : sys_.x, moment_chunks_, mom_partial_.get(), mom_out_.get(),
+                         stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
+    const size_t nv = size_t(cuda::kMomentValues) * nc;
+    double* h = h_moments_.get();
+    if (nv)
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(h, mom_out_.get(), sizeof(double) * nv, cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+    out.assign(size_t(nc), ComponentMoments{});
+    for (int c = 0; c < nc; ++c) {
+      const double* v = h + size_t(cuda::kMomentValues) * c;
+      ComponentMoments& m = out[size_t(c)];
+      m.w = v[0];
+      m.p = Eigen::Vector3d(v[1], v[2], v[3]);
+      m.t = Eigen::Vector3d(v[4], v[5], v[6]);
+      for (int k = 0; k < 9; ++k) {
+        m.pt(k / 3, k % 3) = v[7 + k];
+        m.pp(k / 3, k % 3) = v[16 + k];
+      }
+      m.tt = K_[size_t(c)];
+    }
+  }
+
+  // Per lattice component x -> R x + t (centred frame, as the moments), one kernel.
+  void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override {
+    if (!ready_) throw StateError("set_handles must come before apply_rigid");
+    const int nc = moment_chunks_.components;
+    std::vector<float>& m = h_motions_;
+    m.assign(size_t(16) * nc, 0.f);
+    bool any = false;
+    for (int c = 0; c < nc && size_t(c) < motions.size(); ++c) {
+      const ComponentMotion& mo = motions[size_t(c)];
+      if (!mo.active) continue;
+      any = true;
+      float* r = &m[size_t(16) * c];
+      for (int k = 0; k < 9; ++k) r[k] = float(mo.R(k / 3, k % 3));
+      for (int k = 0; k < 3; ++k) r[9 + k] = float(mo.t[k]);
+      r[12] = 1.f;
+    }
+    if (!any) return;
     LARAP_CUDA_CHECK(
-        cudaMemcpyAsync(h.data(), hpos_.get(), h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
-    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
-    for (int j = 0; j < m; ++j) out.row(j) = from_f4(h[j]).transpose();
-  }
-
-  void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) override {
-    // Centred frame: x_c -> R x_c + (R o + t - o).
-    const Eigen::Vector3d tc = R * origin_ + t - origin_;
-    float r9[9];
-    for (int k = 0; k < 9; ++k) r9[k] = float(R(k / 3, k % 3));
-    if (!ready_) {  // anchored flags not known yet: every node moves
-      RowMatrixX3d p;
-      get_pose(p);
-      for (int i = 0; i < n_; ++i) p.row(i) = (R * p.row(i).transpose() + t).transpose();
-      set_pose(p);
-      return;
-    }
-    cuda::launch_rigid(sys_, r9, float(tc.x()), float(tc.y()), float(tc.z()), stream_);
+        cudaMemcpyAsync(motions_.get(), m.data(), sizeof(float) * m.size(), cudaMemcpyHostToDevice, stream_));
+    cuda::launch_component_rigid(sys_, comp_.get(), motions_.get(), from_rest, stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
-    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
   }
 
-  void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) override {
-    if (!ready_) throw StateError("set_handles must come before iterate");
+  void iterate(int iterations, SolveStats& stats) override {
+    if (!ready_ || !targets_set_) throw StateError("set_handles and set_targets must come before iterate");
     if (iterations <= 0) return;
-    upload_targets(targets);
-    set_energy_buffer(size_t(iterations));
-    h_energy_.reserve(size_t(iterations));
+    set_energy_buffer(size_t(2) * iterations);
+    h_energy_.reserve(size_t(2) * iterations);
     LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.iter, 0, sizeof(int), stream_));
-    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double) * iterations, stream_));
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double) * 2 * iterations, stream_));
     const bool profile = !opt_.profile_path.empty();
     double ms_rot = 0, ms_rhs = 0, ms_sol = 0;
     LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
@@ -332,7 +433,7 @@ class CudaBackend final : public Backend {
       constexpr int kFusedChunk = 64;
       for (int it0 = 0; it0 < iterations; it0 += kFusedChunk) {
         cuda::System sc = sys_;
-        sc.energy = sys_.energy + it0;
+        sc.energy = sys_.energy + 2 * it0;
         const int cnt = std::min(kFusedChunk, iterations - it0);
         if (it0 > 0) {  // the first rotation phase of this chunk adds flip-flop it0 - 1's energy
           cuda::launch_rotations(sys_, false, it0 - 1, stream_);
@@ -349,11 +450,12 @@ class CudaBackend final : public Backend {
     cuda::launch_rotations(sys_, false, iterations - 1, stream_);  // energy of the last pose
     LARAP_CUDA_CHECK(cudaGetLastError());
     LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * iterations,
+    LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * 2 * iterations,
                                      cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
     const double loop_ms = cuda::elapsed_ms(ev_[0], ev_[1]);
-    for (int it = 0; it < iterations; ++it) stats.energy.push_back(h_energy_.get()[it] * hs_.energy_scale);
+    for (int it = 0; it < iterations; ++it)
+      stats.energy.push_back(total_energy(h_energy_.get()[2 * it], h_energy_.get()[2 * it + 1]));
     if (profile) {
       stats.ms_rotations += ms_rot + loop_ms;  // + the final energy pass
       stats.ms_rhs += ms_rhs;
@@ -368,19 +470,18 @@ class CudaBackend final : public Backend {
     }
   }
 
-  double energy(const RowMatrixX3d& targets) override {
-    if (!ready_) throw StateError("set_handles must come before energy");
-    upload_targets(targets);
-    set_energy_buffer(1);
-    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double), stream_));
+  double energy() override {
+    if (!ready_ || !targets_set_) throw StateError("set_handles and set_targets must come before energy");
+    set_energy_buffer(2);
+    LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double) * 2, stream_));
     cuda::launch_rotations(sys_, true, -2, stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
     cuda::launch_rotations(sys_, false, 0, stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
-    double e = 0.0;
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(&e, sys_.energy, sizeof(double), cudaMemcpyDeviceToHost, stream_));
+    double e[2] = {0.0, 0.0};
+    LARAP_CUDA_CHECK(cudaMemcpyAsync(e, sys_.energy, sizeof(e), cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
-    return e * hs_.energy_scale;
+    return total_energy(e[0], e[1]);
   }
 
   void transfer(const Binding& b, double* out, SolveStats& stats) override { transfer_any(b, out, stats); }
@@ -431,13 +532,22 @@ class CudaBackend final : public Backend {
     }
   }
 
-  void upload_targets(const RowMatrixX3d& targets) {
-    const int m = sys_.m;
-    float4* h = h_targets_.reserve(size_t(std::max(m, 1)));
-    for (int j = 0; j < m; ++j) h[j] = to_f4(targets.row(j).transpose());
-    if (m)
-      LARAP_CUDA_CHECK(cudaMemcpyAsync(const_cast<float4*>(sys_.targets), h, sizeof(float4) * m,
-                                       cudaMemcpyHostToDevice, stream_));
+  // Scaled energy from the device's two sums of one flip-flop: ARAP + anchors, and the handle
+  // term without K (c.(M c - 2 H)), as the CPU backend forms it.
+  double total_energy(double arap, double handles) const {
+    return (arap + std::max(handles + K_total_, 0.0)) * hs_.energy_scale;
+  }
+
+  // Moves the device frame to `o` (the handle system's origin), keeping the pose.
+  void recentre(const Eigen::Vector3d& o) {
+    if (o == origin_) return;
+    RowMatrixX3d pose;
+    get_pose(pose);
+    origin_ = o;
+    std::vector<float4> rest(static_cast<size_t>(n_));
+    for (int i = 0; i < n_; ++i) rest[size_t(i)] = to_f4(lat_.rest.row(i).transpose());
+    rest_.upload(rest.data(), rest.size(), stream_);
+    set_pose(pose);  // synchronises: `rest` may go
   }
 
   void launch_solver() {
@@ -576,7 +686,6 @@ class CudaBackend final : public Backend {
     DevBinding& d = device_binding(b);
     const T* V = device_vertices(static_cast<T*>(nullptr));
     T* dout = device_out(static_cast<T*>(nullptr), size_t(3 * nv));
-    T* stage = reinterpret_cast<T*>(staging_.reserve(size_t(3 * nv) * sizeof(T)));
     cuda::launch_displacement(sys_, disp_.get(), stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
     double kernel_ms = -1.0, kernel_rep_ms = -1.0;
@@ -594,24 +703,8 @@ class CudaBackend final : public Backend {
       LARAP_CUDA_CHECK(cudaEventSynchronize(ev_[1].get()));
       kernel_rep_ms = cuda::elapsed_ms(ev_[0], ev_[1]) / kRep;
     }
-    // Pipeline: chunk c is computed, copied to pinned memory, and copied on to `out` by the host
-    // while the device works on chunk c + 1.
     const auto t1 = Clock::now();
-    constexpr int64_t chunk = int64_t(1) << 18;
-    const int64_t nchunks = (nv + chunk - 1) / chunk;
-    while (int64_t(chunk_ev_.size()) < nchunks) chunk_ev_.emplace_back(std::make_unique<cuda::Event>());
-    for (int64_t c = 0; c < nchunks; ++c) {
-      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
-      launch_transfer(b, d, v0, v1, V, dout);
-      LARAP_CUDA_CHECK(cudaMemcpyAsync(stage + 3 * v0, dout + 3 * v0, sizeof(T) * 3 * (v1 - v0),
-                                       cudaMemcpyDeviceToHost, stream_));
-      LARAP_CUDA_CHECK(cudaEventRecord(chunk_ev_[c]->get(), stream_));
-    }
-    for (int64_t c = 0; c < nchunks; ++c) {
-      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
-      LARAP_CUDA_CHECK(cudaEventSynchronize(chunk_ev_[c]->get()));
-      parallel_copy(out + 3 * v0, stage + 3 * v0, sizeof(T) * 3 * (v1 - v0));
-    }
+    copy_back(b, d, nv, V, dout, out);
     const double ms = ms_since(t0);
     stats.ms_transfer += ms;
     if (!opt_.profile_path.empty())
@@ -626,12 +719,59 @@ class CudaBackend final : public Backend {
                      {"elem_size", double(sizeof(T))}});
   }
 
+  // The transfer of vertices [0, nv) into the caller's host array `out`, as opt_.copy says
+  // (cuda_options.h; measured in docs/results-gpu.md).
+  template <typename T>
+  void copy_back(const Binding& b, DevBinding& d, int64_t nv, const T* V, T* dout, T* out) {
+    if (opt_.copy == cuda::CopyBack::Direct) {
+      launch_transfer(b, d, 0, nv, V, dout);
+      LARAP_CUDA_CHECK(
+          cudaMemcpyAsync(out, dout, sizeof(T) * 3 * size_t(nv), cudaMemcpyDeviceToHost, stream_));
+      LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+      return;
+    }
+    // Chunk c: kernel, copy into pinned memory, event; the host copies it on into `out`.
+    T* stage = reinterpret_cast<T*>(staging_.reserve(size_t(3 * nv) * sizeof(T)));
+    const int64_t chunk = opt_.copy_chunk;
+    const int64_t nchunks = (nv + chunk - 1) / chunk;
+    while (int64_t(chunk_ev_.size()) < nchunks) chunk_ev_.emplace_back(std::make_unique<cuda::Event>());
+    for (int64_t c = 0; c < nchunks; ++c) {
+      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
+      launch_transfer(b, d, v0, v1, V, dout);
+      LARAP_CUDA_CHECK(cudaMemcpyAsync(stage + 3 * v0, dout + 3 * v0, sizeof(T) * 3 * (v1 - v0),
+                                       cudaMemcpyDeviceToHost, stream_));
+      LARAP_CUDA_CHECK(cudaEventRecord(chunk_ev_[c]->get(), stream_));
+    }
+    if (opt_.copy == cuda::CopyBack::Staged) {
+      for (int64_t c = 0; c < nchunks; ++c) {
+        const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
+        LARAP_CUDA_CHECK(cudaEventSynchronize(chunk_ev_[c]->get()));
+        parallel_copy(out + 3 * v0, stage + 3 * v0, sizeof(T) * 3 * (v1 - v0));
+      }
+      return;
+    }
+    // Overlap: each chunk is a task that waits for its own event, so the host copies of early
+    // chunks run while later chunks are still on their way (no exception may leave a task).
+    std::atomic<int> error{int(cudaSuccess)};
+    parallel_for(nchunks, [&](int64_t c) {
+      const cudaError_t e = cudaEventSynchronize(chunk_ev_[size_t(c)]->get());
+      if (e != cudaSuccess) {
+        int expected = int(cudaSuccess);
+        error.compare_exchange_strong(expected, int(e));
+        return;
+      }
+      const int64_t v0 = c * chunk, v1 = std::min(nv, v0 + chunk);
+      std::memcpy(out + 3 * v0, stage + 3 * v0, sizeof(T) * 3 * size_t(v1 - v0));
+    }, 1);
+    if (error.load() != int(cudaSuccess)) cuda::fail(cudaError_t(error.load()), "cudaEventSynchronize");
+  }
+
   void write_profile(const char* what, int iterations,
                      std::initializer_list<std::pair<const char*, double>> kv) {
     FILE* f = std::fopen(opt_.profile_path.c_str(), "a");
     if (!f) return;
-    std::fprintf(f, "{\"what\": \"%s\", \"nodes\": %d, \"handles\": %d, \"iterations\": %d, \"inner\": %d",
-                 what, n_, sys_.m, iterations, inner_);
+    std::fprintf(f, "{\"what\": \"%s\", \"nodes\": %d, \"handles\": %lld, \"iterations\": %d, \"inner\": %d",
+                 what, n_, static_cast<long long>(hs_.m), iterations, inner_);
     for (const auto& p : kv) std::fprintf(f, ", \"%s\": %.6g", p.first, p.second);
     std::fprintf(f, "}\n");
     std::fclose(f);
@@ -646,24 +786,36 @@ class CudaBackend final : public Backend {
   int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
   double lam_min_ = 0.0, lam_max_ = 2.0;
   bool ready_ = false;
+  bool targets_set_ = false;
   HandleSystem hs_;
+  std::vector<double> K_;  // K of the current targets, per lattice component
+  double K_total_ = 0.0;
+  RowMatrixX3d H_rows_;    // row targets: H on the host
+  std::vector<float4> h_rows_;
+  std::vector<double> h_maps_;
+  std::vector<float> h_motions_;
+  std::vector<int> mc_nodes_host_, mc_chunk_off_host_, mc_comp_off_host_;
+  cuda::GroupEntries entries_;
+  cuda::MomentChunks moment_chunks_;
 
   cuda::Stream stream_;  // first: destroyed after every buffer's last use
   cuda::System sys_;
-  cuda::DeviceBuffer<float4> rest_, x_, p_, r_[2], w_[2], s_[2], xtmp_, targets_, disp_;
-  mutable cuda::DeviceBuffer<float4> hpos_;
+  cuda::DeviceBuffer<float4> rest_, x_, p_, r_[2], w_[2], s_[2], xtmp_, disp_, h_;
+  cuda::DeviceBuffer<double> hd_, q_, m_val_, e_q_, e_P_, maps_, mom_partial_, mom_out_;
+  cuda::DeviceBuffer<int> comp_, m_off_, m_col_, e_off_, e_group_, mc_nodes_, mc_chunk_off_, mc_comp_off_;
+  cuda::DeviceBuffer<float> motions_;
+  cuda::PinnedBuffer<double> h_moments_;
   cuda::DeviceBuffer<int> agg_, nbr_, rem_off_, rem_col_;
   cuda::DeviceBuffer<float> a_diag_, a_nb_, rem_val_;
   cuda::DeviceBuffer<float> ainv_;
   cuda::DeviceBuffer<float4> rc_, zc_, rc2_, zc2_;
   cuda::DeviceBuffer<int> agg2_, c_off_, c_col_;
   cuda::DeviceBuffer<float> c_val_, c_minv_;
-  cuda::DeviceBuffer<int> adj_off_, adj_, a_off_, a_col_, bt_off_, bt_h_, b_ids_, iter_;
-  cuda::DeviceBuffer<float> a_val_, minv_, bt_w_, b_w_, rot_, coef_;
+  cuda::DeviceBuffer<int> adj_off_, adj_, a_off_, a_col_, iter_;
+  cuda::DeviceBuffer<float> a_val_, minv_, rot_, coef_;
   cuda::DeviceBuffer<uint8_t> anch_;
   cuda::DeviceBuffer<double> dots_, energy_;
   cuda::DeviceBuffer<unsigned> counters_;
-  cuda::PinnedBuffer<float4> h_targets_;
   cuda::PinnedBuffer<double> h_energy_;
   cuda::PinnedBuffer<char> staging_;
   DevBinding bind_[2];

@@ -77,6 +77,18 @@ CudaOptions cuda_options_from_environment() {
   if (const char* v = env("LARAP_CUDA_PROFILE")) o.profile_path = v;
   if (const char* v = env("LARAP_CUDA_TRANSFER")) o.transfer = parse_transfer(v);
   o.cheby_ratio = std::max(1.0, double(env_int("LARAP_CUDA_CHEBY_RATIO", 50)));
+  if (const char* v = env("LARAP_CUDA_COPY")) {
+    const std::string c = v;
+    if (c == "overlap")
+      o.copy = CopyBack::Overlap;
+    else if (c == "staged")
+      o.copy = CopyBack::Staged;
+    else if (c == "direct")
+      o.copy = CopyBack::Direct;
+    else
+      throw InvalidInput("LARAP_CUDA_COPY must be overlap, staged or direct, got '" + c + "'");
+  }
+  o.copy_chunk = std::clamp(env_int("LARAP_CUDA_COPY_CHUNK", o.copy_chunk), 1024, 1 << 24);
   return o;
 }
 

@@ -34,6 +34,14 @@ struct TransferKernel {
   bool streaming = false;       // ilp: streaming cache hints on read-once data
 };
 
+// How the transfer's result reaches the caller's host array (docs/cuda.md, "The copy back").
+enum class CopyBack {
+  Overlap,  // chunks: kernel + copy into pinned memory per chunk; host threads each wait for
+            // their chunk and copy it on into the caller's array while later chunks still move
+  Staged,   // the same chunks, copied on one after another (each copy itself parallel)
+  Direct,   // one kernel, then one copy from the device straight into the caller's (pageable) array
+};
+
 struct CudaOptions {
   Solver solver = Solver::Multigrid;  // LARAP_CUDA_SOLVER = mg | pcg | cheby | jacobi
   // Inner solver iterations per flip-flop, 1..1000; 0 = automatic: mg 1 with two levels whose
@@ -51,6 +59,8 @@ struct CudaOptions {
   std::string profile_path;
   TransferKernel transfer;    // LARAP_CUDA_TRANSFER = scalar | staged | ilp1 | ilp2 | ilp4 | ilp2s | ilp4s
   double cheby_ratio = 50.0;  // cheby: lambda_max / lambda_min assumed   LARAP_CUDA_CHEBY_RATIO
+  CopyBack copy = CopyBack::Overlap;  // LARAP_CUDA_COPY = overlap | staged | direct
+  int copy_chunk = 1 << 16;           // vertices per chunk of overlap / staged, 1024..2^24  LARAP_CUDA_COPY_CHUNK
 };
 
 // The options from the LARAP_CUDA_* environment variables (unset or empty: the default).

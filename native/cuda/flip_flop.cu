@@ -8,16 +8,15 @@ namespace cuda {
 namespace {
 
 __global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
-  const int t = blockIdx.x * blockDim.x + threadIdx.x;
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
   int e_slot = slot;
   if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
-  double e = 0.0;
-  if (t < s.n) e += rot_node(s, t, write_rot, e_slot >= 0);
-  if (e_slot >= 0 && t < s.m) e += handle_energy(s, t);
-  if (e_slot >= 0) {
-    double v[1] = {e};
-    block_add<1>(v, s.energy + e_slot);
+  double v[2] = {0.0, 0.0};
+  if (i < s.n) {
+    v[0] = rot_node(s, i, write_rot, e_slot >= 0);
+    if (e_slot >= 0) v[1] = handle_energy(s, i);
   }
+  if (e_slot >= 0) block_add<2>(v, s.energy + 2 * e_slot);
 }
 
 __global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
@@ -47,27 +46,6 @@ __global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
 }
 
 // ---------------------------------------------------------------- small helpers
-struct Mat3f {
-  float m[9];
-};
-
-__global__ void rigid_kernel(System s, Mat3f R, float4 t) {
-  const int i = blockIdx.x * blockDim.x + threadIdx.x;
-  if (i >= s.n || s.anchored[i]) return;
-  const float4 p = s.x[i];
-  s.x[i] =
-      f4(R.m[0] * p.x + R.m[1] * p.y + R.m[2] * p.z + t.x, R.m[3] * p.x + R.m[4] * p.y + R.m[5] * p.z + t.y,
-         R.m[6] * p.x + R.m[7] * p.y + R.m[8] * p.z + t.z);
-}
-
-__global__ void handle_positions_kernel(System s, float4* out) {
-  const int j = blockIdx.x * blockDim.x + threadIdx.x;
-  if (j >= s.m) return;
-  float4 acc = f4(0, 0, 0);
-  for (int k = 0; k < s.stencil; ++k) acc = acc + s.b_w[j * s.stencil + k] * s.x[s.b_ids[j * s.stencil + k]];
-  out[j] = acc;
-}
-
 __global__ void displacement_kernel(System s, float4* disp) {
   const int i = blockIdx.x * blockDim.x + threadIdx.x;
   if (i < s.n) disp[i] = s.x[i] - s.rest[i];
@@ -78,23 +56,12 @@ __global__ void probe_kernel() {}
 }  // namespace
 
 void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st) {
-  const int64_t n = s.n > s.m ? s.n : s.m;
-  if (n == 0) return;
-  rotations_kernel<<<blocks_for(n), kBlock, 0, st>>>(s, write_rot, slot);
+  if (s.n == 0) return;
+  rotations_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, write_rot, slot);
 }
 
 void launch_rhs(const System& s, bool residual, cudaStream_t st) {
   rhs_kernel<<<blocks_for(s.n > 0 ? s.n : 1), kBlock, 0, st>>>(s, residual);
-}
-
-void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st) {
-  Mat3f R;
-  for (int k = 0; k < 9; ++k) R.m[k] = R9[k];
-  if (s.n) rigid_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, R, make_float4(tx, ty, tz, 0.f));
-}
-
-void launch_handle_positions(const System& s, float4* out, cudaStream_t st) {
-  if (s.m) handle_positions_kernel<<<blocks_for(s.m), kBlock, 0, st>>>(s, out);
 }
 
 void launch_displacement(const System& s, float4* disp, cudaStream_t st) {

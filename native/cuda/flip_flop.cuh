@@ -59,18 +59,26 @@ __device__ __forceinline__ double rot_node(const System& s, int i, bool write_ro
   return e;
 }
 
-// Handle t's term |B_t x - t_t|^2.
-__device__ __forceinline__ double handle_energy(const System& s, int t) {
-  float4 acc = f4(0, 0, 0);
-  for (int k = 0; k < s.stencil; ++k) {
-    const int id = s.b_ids[t * s.stencil + k];
-    acc = acc + s.b_w[t * s.stencil + k] * s.x[id];
+// Node i's share of the handle term without K: c_i . ((M c)_i - 2 H_i), in double (system.h).
+// 0 for a node no handle reads (an empty row of M).
+__device__ __forceinline__ double handle_energy(const System& s, int i) {
+  const int q0 = __ldg(s.m_off + i), q1 = __ldg(s.m_off + i + 1);
+  if (q0 == q1) return 0.0;
+  double mx = 0.0, my = 0.0, mz = 0.0;
+  for (int q = q0; q < q1; ++q) {
+    const double v = __ldg(s.m_val + q);
+    const float4 xj = s.x[__ldg(s.m_col + q)];
+    mx += v * double(xj.x);
+    my += v * double(xj.y);
+    mz += v * double(xj.z);
   }
-  const float4 d = acc - s.targets[t];
-  return double(dot3(d, d));
+  const float4 xi = s.x[i];
+  const double* h = s.hd + 3 * int64_t(i);
+  return double(xi.x) * (mx - 2.0 * h[0]) + double(xi.y) * (my - 2.0 * h[1]) + double(xi.z) * (mz - 2.0 * h[2]);
 }
 
-// Row i of the right-hand side: g sum_j (R_i + R_j)(c_i - c_j) + (B^T t)_i + a c_i [anchored].
+// Row i of the right-hand side: g sum_j (R_i + R_j)(c_i - c_j) + H_i + a c_i [anchored]
+// (H = B^T alpha t, centred: handle_system.h).
 __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
   const SlotEdges edges(s, i);
   float Ri[9];
@@ -79,7 +87,7 @@ __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
   float arap[3];
   node_rhs(edges, s.g, Ri, arap);
   float4 b = f4(arap[0], arap[1], arap[2]);
-  for (int k = s.bt_off[i]; k < s.bt_off[i + 1]; ++k) b = b + s.bt_w[k] * s.targets[s.bt_handle[k]];
+  b = b + s.h[i];
   if (s.anchored[i]) b = b + s.a * edges.ci;
   return b;
 }

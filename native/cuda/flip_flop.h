@@ -1,6 +1,6 @@
 // Launchers of the flip-flop's stages other than the linear solve (kernels: flip_flop.cu), and
-// the small per-node kernels of the backend (rigid motion, handle positions, displacement).
-// Internal to native/cuda.
+// the small per-node kernels of the backend (displacement, probe). The per-pose handle work
+// (H from group maps, moments, rigid motions) is handles.h. Internal to native/cuda.
 #pragma once
 #include <cuda_runtime.h>
 
@@ -10,17 +10,14 @@ namespace larap {
 namespace cuda {
 
 // Rotations (+ energy). `slot`: -1 = add the energy of the current pose with the current
-// rotations into energy[*iter - 1] when *iter > 0 (fused into the rotation step of the next
-// flip-flop); -2 = no energy; >= 0 = into energy[slot]. write_rot = false: energy only.
+// rotations into energy slot *iter - 1 when *iter > 0 (fused into the rotation step of the next
+// flip-flop); -2 = no energy; >= 0 = into slot `slot`. Slot k is energy[2k] (ARAP + anchors)
+// and energy[2k + 1] (handle term without K). write_rot = false: energy only.
 void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st);
 // b into r[0] (residual = false) or r0 = b - A x (residual = true); zeroes the solver scalars;
 // (*iter)++.
 void launch_rhs(const System& s, bool residual, cudaStream_t st);
 
-// x -> R x + t on every node that is not anchored (R9 row-major, centred frame).
-void launch_rigid(const System& s, const float* R9, float tx, float ty, float tz, cudaStream_t st);
-// out[j] = B_j x (m handles).
-void launch_handle_positions(const System& s, float4* out, cudaStream_t st);
 // disp[i] = x_i - rest_i.
 void launch_displacement(const System& s, float4* disp, cudaStream_t st);
 

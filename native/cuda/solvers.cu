@@ -42,7 +42,7 @@ __device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool fi
   const float4* rin = s.r[(k + 1) & 1];  // r_{k-1} (k > 0)
   float4 rn;
   if (k > 0) {
-    rn = rin[i] - cmul(al, s.q[i]);
+    rn = rin[i] - cmul(al, s.aq[i]);
     s.x[i] = s.x[i] + cmul(al, s.pb[(k - 1) & 1][i]);
     if (final) return;
     s.r[k & 1][i] = rn;
@@ -50,7 +50,7 @@ __device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool fi
     rn = s.r[0][i];
   }
   const float4* rk = k > 0 ? rin : s.r[0];
-  const float4* qv = s.q;
+  const float4* qv = s.aq;
   const float* minv = s.minv;
   const float4 ar = k > 0 ? spmv_row(s, i, [&](int j) { return __ldg(minv + j) * (rk[j] - cmul(al, qv[j])); })
                           : spmv_row(s, i, [&](int j) { return __ldg(minv + j) * rk[j]; });
@@ -179,7 +179,7 @@ __device__ __forceinline__ void mg_d_node(const System& s, int i, int k, float4 
   const float4 aq = k > 0 ? spmv_row(s, i, [&](int j) { return z[j] + cmul(be, pold[j]); })
                           : spmv_row(s, i, [&](int j) { return z[j]; });
   s.pb[k & 1][i] = pi;
-  s.q[i] = aq;
+  s.aq[i] = aq;
   v[0] += pi.x * aq.x;
   v[1] += pi.y * aq.y;
   v[2] += pi.z * aq.z;
@@ -200,19 +200,15 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
   cg::grid_group grid = cg::this_grid();
   const int tid = blockIdx.x * blockDim.x + threadIdx.x;
   const int stride = gridDim.x * blockDim.x;
-  const int nrot = s.n > s.m ? s.n : s.m;
   for (int it = 0; it < iterations; ++it) {
-    {  // rotations + energy of the previous flip-flop
+    {  // rotations + energy of the previous flip-flop (ARAP and anchors, handle term)
       const bool want_e = it > 0;
-      double e = 0.0;
-      for (int t = tid; t < nrot; t += stride) {
-        if (t < s.n) e += rot_node(s, t, true, want_e);
-        if (want_e && t < s.m) e += handle_energy(s, t);
+      double v[2] = {0.0, 0.0};
+      for (int i = tid; i < s.n; i += stride) {
+        v[0] += rot_node(s, i, true, want_e);
+        if (want_e) v[1] += handle_energy(s, i);
       }
-      if (want_e) {
-        double v[1] = {e};
-        block_add<1>(v, s.energy + it - 1);
-      }
+      if (want_e) block_add<2>(v, s.energy + 2 * (it - 1));
     }
     grid.sync();
     // rhs, r0 = b - A x; fresh scalars and restriction slots

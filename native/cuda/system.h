@@ -2,8 +2,10 @@
 // kernel (flip_flop.h, solvers.h). Internal to native/cuda; no public header includes CUDA.
 // Filled by the backend (cuda_backend.cpp) from its DeviceBuffers.
 //
-// Frame: every position on the device is relative to `origin` (the lattice centre), so that the
-// float arithmetic of A x and the right-hand side does not lose digits to a large offset.
+// Frame: every position on the device is relative to an origin (the handle system's `origin`, the
+// centroid of the rest vertices, once handles are set; the lattice centre before), so that the
+// float arithmetic of A x and the right-hand side does not lose digits to a large offset, and the
+// handle sums H, K and the moments need no change of frame.
 // Vectors of 3 columns (x, y, z) are float4 (w unused) so that one node is one 16-byte load.
 #pragma once
 #include <cuda_runtime.h>
@@ -28,20 +30,21 @@ struct System {
   const int* rem_off = nullptr;
   const int* rem_col = nullptr;
   const float* rem_val = nullptr;
-  // A = 2 g L + B^T B + a I_anchored, CSR, float; Jacobi preconditioner.
+  // A = 2 g L + M + a I_anchored, CSR, float; Jacobi preconditioner.
   const int* a_off = nullptr;
   const int* a_col = nullptr;
   const float* a_val = nullptr;
   const float* minv = nullptr;  // 1 / diag(A)
-  // B^T as CSR over nodes: entries (handle, weight).
-  const int* bt_off = nullptr;
-  const int* bt_handle = nullptr;
-  const float* bt_w = nullptr;
-  // B by handle: m * stencil ids and weights.
-  int m = 0;
-  int stencil = 8;
-  const int* b_ids = nullptr;
-  const float* b_w = nullptr;
+  // The handle term (handle_system.h): c^T M c - 2 c . H + K, M = B^T diag(alpha) B as CSR over
+  // all n nodes (rows of nodes no handle reads are empty), in double: the term is a small
+  // difference of large sums near convergence, which float would lose. K (per pose, per lattice
+  // component) stays on the host. Nothing here runs over handle rows.
+  const int* m_off = nullptr;   // n + 1
+  const int* m_col = nullptr;
+  const double* m_val = nullptr;
+  const double* q = nullptr;    // n: B^T alpha
+  const float4* h = nullptr;    // n: H of the current pose's targets, for the right-hand side
+  const double* hd = nullptr;   // 3 n: the same in double, for the energy and the moments
   const uint8_t* anchored = nullptr;  // n
   float g = 0.f;                      // gamma_eff
   float a = 0.f;                      // anchor weight
@@ -53,13 +56,12 @@ struct System {
   float4* s[2] = {nullptr, nullptr};  // A p
   float4* x_tmp = nullptr;            // Chebyshev / Jacobi: ping-pong partner of x
   float* rot = nullptr;               // 9 * n, SoA: rot[k * n + i]
-  const float4* targets = nullptr;    // m (centred)
   // Scalars.
   double* dots = nullptr;        // (inner + 1) * 6
   float* coef = nullptr;         // (inner + 2) * 8
   unsigned* counters = nullptr;  // inner + 1
   int* iter = nullptr;           // flip-flop counter of the running solve
-  double* energy = nullptr;      // per flip-flop (unscaled)
+  double* energy = nullptr;      // 2 per flip-flop (unscaled): ARAP + anchors, c.(M c - 2 H)
   int inner = 8;                 // inner solver iterations per flip-flop
   // Two-level preconditioner (solver "mg"): aggregates of fine nodes (coord >> shift), dense
   // inverse of the Galerkin coarse operator P^T A P, damped Jacobi smoothing (weight omega).
@@ -69,7 +71,7 @@ struct System {
   float4* rc = nullptr;                // inner * nc: restricted residual per iteration
   float4* zc = nullptr;                // nc
   float4* z = nullptr;                 // n, preconditioned residual
-  float4* q = nullptr;                 // n, A p
+  float4* aq = nullptr;                // n, A p
   float4* pb[2] = {nullptr, nullptr};  // ping-pong: direction
   float omega = 0.6f;
   // Third level (nc2 > 0): the coarse system above is then not inverted but preconditioned by

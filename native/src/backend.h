@@ -1,15 +1,16 @@
 // The interface every solver backend (CPU, CUDA) implements. Internal: public headers never
 // include this file, and the CUDA backend hides every CUDA type behind it.
 //
-// The problem (see docs/method.md): lattice nodes c' (#N by 3), handles j = 1..m with weights
-// B (m by #N, 8 or 27 entries a row) and targets t (m by 3). Energy
+// The problem (see docs/method.md and handle_system.h): lattice nodes c' (#N by 3), handle rows
+// j = 1..m with weights B (m by #N, 8 or 27 entries a row), row weights alpha and targets t.
 //   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} |(c'_i - c'_j) - R_i (c_i - c_j)|^2
-//            + sum_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
+//            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
 // minimised by flip-flop: R_i from the 3x3 SVD of S_i = sum_j (c_i - c_j)(c'_i - c'_j)^T, then
-//   (2 gamma_eff L + B^T B + a I_anchored) c' = gamma_eff b + B^T t + a c_anchored,
-//   b_i = sum_{j in N(i)} (R_i + R_j)(c_i - c_j),
+//   (2 gamma_eff L + M + a I_anchored) c' = gamma_eff b + B^T alpha t + a c_anchored,
+//   b_i = sum_{j in N(i)} (R_i + R_j)(c_i - c_j),   M = B^T diag(alpha) B,
 // L the graph Laplacian of the lattice edges. Anchored nodes are those of lattice components
-// that hold no handle: they stay at rest.
+// that hold no handle: they stay at rest. A pose's targets reach the backend as H~ = B^T alpha t~
+// and K~ (handle_system.h), so nothing per pose costs in proportion to the handle rows.
 #pragma once
 #include <larap/binding.h>
 #include <larap/solve_stats.h>
@@ -19,6 +20,7 @@
 #include <string>
 
 #include "handle_system.h"
+#include "warm_start.h"
 
 namespace larap {
 
@@ -29,18 +31,22 @@ class Backend {
 
   // A new handle set (or new weights): prepare the linear solve. Keeps the current pose.
   virtual void set_handles(const HandleSystem& handles) = 0;
+  // A pose's targets (rows or group maps): H~ and K~ for the iterations and the energy.
+  virtual void set_targets(const HandleTargets& targets) = 0;
   // The current lattice pose (#N by 3).
   virtual void set_pose(const RowMatrixX3d& nodes) = 0;
   virtual void get_pose(RowMatrixX3d& nodes) const = 0;
-  // B c' for the current pose (m by 3).
-  virtual void handle_positions(RowMatrixX3d& out) const = 0;
-  // x -> R x + t on every node that is not anchored.
-  virtual void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) = 0;
-  // `iterations` flip-flop steps towards targets (m by 3); appends the energy after each
-  // step to stats.energy and adds stage times to stats.
-  virtual void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) = 0;
+  // Per lattice component, the moments of the handle rows for the current pose (or the rest
+  // lattice) against the targets (warm_start.h).
+  virtual void moments(bool rest, std::vector<ComponentMoments>& out) = 0;
+  // Per lattice component: x -> R x + t on its nodes (from_rest: on its rest positions) where
+  // the motion is active; other components keep their pose.
+  virtual void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) = 0;
+  // `iterations` flip-flop steps towards the targets; appends the energy after each step to
+  // stats.energy and adds stage times to stats.
+  virtual void iterate(int iterations, SolveStats& stats) = 0;
   // Energy (scaled) of the current pose with its best rotations, without changing the pose.
-  virtual double energy(const RowMatrixX3d& targets) = 0;
+  virtual double energy() = 0;
   // out (#V by 3, row-major) = rest vertices + W (pose - rest lattice); W from `binding`.
   virtual void transfer(const Binding& binding, double* out, SolveStats& stats) = 0;
   virtual void transfer(const Binding& binding, float* out, SolveStats& stats) = 0;

@@ -74,43 +74,60 @@ class CpuBackend final : public Backend {
     const auto trip = arap_triplets(lat_, hs);
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
-    B_.resize(hs.m, n);
-    const auto bt = handle_triplets(hs);
-    B_.setFromTriplets(bt.begin(), bt.end());
-    Bt_ = B_.transpose();
-    A += Eigen::SparseMatrix<double>(Bt_ * B_);
+    M_ = handle_matrix(hs, n);
+    A += M_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();
     llt_->compute(A);
     if (llt_->info() != Eigen::Success)
       throw DeviceError("the lattice system could not be factorised (not positive definite)");
     rhs_.resize(n, 3);
-    handle_energy_.assign(size_t(hs.m), 0.0);
+    H_.setZero(n, 3);
+    K_.assign(size_t(hs.num_components), 0.0);
+    targets_set_ = false;
+  }
+
+  void set_targets(const HandleTargets& targets) override {
+    handle_rhs(hs_, targets, H_, K_);
+    targets_set_ = true;
   }
 
   void set_pose(const RowMatrixX3d& nodes) override { pose_ = nodes; }
   void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
 
-  void handle_positions(RowMatrixX3d& out) const override {
-    out.resize(hs_.m, 3);
-    const int s = hs_.stencil;
-    parallel_for(hs_.m, [&](int64_t j) {
-      Eigen::Vector3d x = Eigen::Vector3d::Zero();
-      for (int k = 0; k < s; ++k) x += hs_.weights[j * s + k] * pose_.row(hs_.ids[j * s + k]).transpose();
-      out.row(j) = x.transpose();
-    }, 2048);
+  void moments(bool rest, std::vector<ComponentMoments>& out) override {
+    const RowMatrixX3d& P = rest ? lat_.rest : pose_;
+    const RowMatrixX3d Pc = P.rowwise() - hs_.origin.transpose();
+    const RowMatrixX3d MP = M_ * Pc;  // M is symmetric
+    out.assign(size_t(hs_.num_components), ComponentMoments{});
+    for (int64_t i = 0; i < lat_.num_nodes(); ++i) {
+      if (hs_.q[i] == 0.0) continue;
+      ComponentMoments& m = out[lat_.component[i]];
+      const Eigen::Vector3d p = Pc.row(i).transpose(), h = H_.row(i).transpose();
+      m.w += hs_.q[i];
+      m.p += hs_.q[i] * p;
+      m.t += h;
+      m.pt += p * h.transpose();
+      m.pp += p * MP.row(i);
+    }
+    for (size_t c = 0; c < out.size(); ++c) out[c].tt = K_[c];
   }
 
-  void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) override {
+  void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override {
     const int64_t n = lat_.num_nodes();
-    for (int64_t i = 0; i < n; ++i)
-      if (hs_.anchored.empty() || !hs_.anchored[i])
-        pose_.row(i) = (R * pose_.row(i).transpose() + t).transpose();
+    for (int64_t i = 0; i < n; ++i) {
+      const ComponentMotion& mo = motions[lat_.component[i]];
+      if (!mo.active || hs_.anchored[i]) continue;
+      // The motion maps centred coordinates (the moments are centred at origin).
+      const Eigen::Vector3d x = (from_rest ? lat_.rest : pose_).row(i).transpose() - hs_.origin;
+      pose_.row(i) = (mo.R * x + mo.t + hs_.origin).transpose();
+    }
   }
 
-  void iterate(const RowMatrixX3d& targets, int iterations, SolveStats& stats) override {
-    if (!llt_) throw StateError("set_handles must come before iterate");
-    const Eigen::MatrixX3d Btt = Bt_ * targets;  // fixed for this solve
+  void iterate(int iterations, SolveStats& stats) override {
+    if (!llt_ || !targets_set_) throw StateError("set_handles and set_targets must come before iterate");
+    const Eigen::Map<const Eigen::VectorXd> q(hs_.q.data(), Eigen::Index(hs_.q.size()));
+    const RowMatrixX3d Bt = H_ + q * hs_.origin.transpose();  // B^T alpha t, fixed for this solve
     for (int it = 0; it < iterations; ++it) {
       auto t0 = Clock::now();
       // The pass that fits the new rotations also sums the ARAP energy of the previous
@@ -119,12 +136,12 @@ class CpuBackend final : public Backend {
       stats.ms_rotations += ms_since(t0);
       if (it > 0) {
         t0 = Clock::now();
-        stats.energy.push_back(finish_energy(targets));
+        stats.energy.push_back(finish_energy());
         stats.ms_energy += ms_since(t0);
       }
 
       t0 = Clock::now();
-      right_hand_side(Btt);
+      right_hand_side(Bt);
       stats.ms_rhs += ms_since(t0);
 
       t0 = Clock::now();
@@ -134,14 +151,14 @@ class CpuBackend final : public Backend {
     }
     if (iterations > 0) {
       const auto t0 = Clock::now();
-      stats.energy.push_back(evaluate(targets));
+      stats.energy.push_back(evaluate());
       stats.ms_energy += ms_since(t0);
     }
   }
 
-  double energy(const RowMatrixX3d& targets) override {
+  double energy() override {
     rotations(false);
-    return evaluate(targets);
+    return evaluate();
   }
 
   void transfer(const Binding& b, double* out, SolveStats& stats) override { transfer_any(b, out, stats); }
@@ -177,21 +194,19 @@ class CpuBackend final : public Backend {
                                       (pose_.row(i) - lat_.rest.row(i)).squaredNorm());
   }
 
-  // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term.
-  double finish_energy(const RowMatrixX3d& targets) {
+  // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term
+  // c~^T M c~ - 2 c~ . H~ + K~ (handle_system.h).
+  double finish_energy() {
     double total = 0.0;
     for (double e : node_energy_) total += e;
-    const int s = hs_.stencil;
-    parallel_for(hs_.m, [&](int64_t j) {
-      Eigen::Vector3d x = -targets.row(j).transpose();
-      for (int k = 0; k < s; ++k) x += hs_.weights[j * s + k] * pose_.row(hs_.ids[j * s + k]).transpose();
-      handle_energy_[j] = x.squaredNorm();
-    }, 2048);
-    for (double e : handle_energy_) total += e;
-    return total * hs_.energy_scale;
+    const RowMatrixX3d Pc = pose_.rowwise() - hs_.origin.transpose();
+    const RowMatrixX3d MP = M_ * Pc;
+    double handles = (Pc.array() * (MP - 2.0 * H_).array()).sum();
+    for (double k : K_) handles += k;
+    return (total + std::max(handles, 0.0)) * hs_.energy_scale;
   }
 
-  void right_hand_side(const Eigen::MatrixX3d& Btt) {
+  void right_hand_side(const RowMatrixX3d& Btt) {
     const auto& C = lat_.rest;
     const double g = hs_.gamma_eff, a = hs_.anchor_weight;
     parallel_for(lat_.num_nodes(), [&](int64_t i) {
@@ -204,12 +219,12 @@ class CpuBackend final : public Backend {
   }
 
   // Energy of the current pose with the current rotations (scaled).
-  double evaluate(const RowMatrixX3d& targets) {
+  double evaluate() {
     parallel_for(lat_.num_nodes(), [&](int64_t i) {
       double S[9];
       node_energy_[i] = node_energy(i, node_covariance(edges_of(i), true, R_[i].data(), S));
     }, 1024);
-    return finish_energy(targets);
+    return finish_energy();
   }
 
   const Lattice& lat_;
@@ -217,10 +232,11 @@ class CpuBackend final : public Backend {
   RowMatrixX3d pose_;
   std::vector<Rotation> R_;
   std::vector<double> node_energy_;
-  std::vector<double> handle_energy_;
   HandleSystem hs_;
-  Eigen::SparseMatrix<double, Eigen::RowMajor> B_;
-  Eigen::SparseMatrix<double> Bt_;
+  Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B
+  RowMatrixX3d H_;                 // H~ of the current targets
+  std::vector<double> K_;          // K~ per component
+  bool targets_set_ = false;
   std::unique_ptr<Factor> llt_;
   Eigen::MatrixX3d rhs_;
 };

@@ -3,14 +3,17 @@
 #include <larap/deformer.h>
 #include <larap/errors.h>
 
+#include <Eigen/LU>
 #include <chrono>
 #include <cmath>
+#include <numeric>
+#include <unordered_map>
 #include <unordered_set>
 
 #include "backend.h"
 #include "handle_system.h"
 #include "hierarchy.h"
-#include "rigid_fit.h"
+#include "warm_start.h"
 
 namespace larap {
 namespace {
@@ -67,8 +70,8 @@ struct Deformer::Impl {
   mutable std::unique_ptr<Binding> bindings[2];  // per weight kind, made on first use
   std::unique_ptr<Backend> backend;              // the fine level
   Hierarchy hierarchy;                           // the coarse levels
-  std::vector<int64_t> handles;
-  RowMatrixX3d rest_handles;  // rest positions of the handles
+  HandleSpec spec;            // the handle vertices, their groups and weights, rest positions
+  Eigen::Vector3d origin;     // centre of the rest lattice: centres the handle sums
   std::vector<uint8_t> fine_anchored;
   bool handles_set = false;
   bool auto_device = false;
@@ -81,15 +84,18 @@ struct Deformer::Impl {
     return *slot;
   }
 
+  void set_spec(HandleSpec next);
   void prepare_handles();
   void replace_backend_with_cpu(const HandleSystem& hs, const OutOfMemory& why);
-  bool pose_lattice(const double* targets, int iterations, double tolerance);
-  void check_solve_args(const double* targets, int iterations, double tolerance) const;
-  void choose_start(const RowMatrixX3d& targets);
-  void coarse_to_fine(const RowMatrixX3d& targets, int iterations);
-  void iterate_fine(const RowMatrixX3d& targets, int iterations, double tolerance);
+  bool pose_lattice(const HandleTargets& targets, int iterations, double tolerance);
+  void check_solve_args(const HandleTargets& targets, int iterations, double tolerance) const;
+  void choose_start();
+  void coarse_to_fine(const HandleTargets& targets, int iterations);
+  void iterate_fine(int iterations, double tolerance);
   template <typename T>
-  void solve(const double* targets, int iterations, T* out, double tolerance);
+  void solve(const HandleTargets& targets, int iterations, T* out, double tolerance);
+  HandleTargets rows(const double* targets) const { return HandleTargets{targets, nullptr}; }
+  HandleTargets maps(const double* transforms, std::vector<Affine34>& storage) const;
 };
 
 // ------------------------------------------------------------------------------------ construction
@@ -108,6 +114,8 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   const Eigen::Vector3d ext = (V.colwise().maxCoeff() - V.colwise().minCoeff()).transpose();
   d.diagonal = ext.norm() > 0.0 ? ext.norm() : d.lattice.h;
   const Eigen::RowVector3d centroid = V.colwise().mean();
+  // The handle sums are centred at the lattice's centre (the CUDA backend keeps its float frame there).
+  d.origin = 0.5 * (d.lattice.rest.colwise().minCoeff() + d.lattice.rest.colwise().maxCoeff()).transpose();
   d.size = std::sqrt((V.rowwise() - centroid).rowwise().squaredNorm().mean());
   if (!(d.size > 0.0)) d.size = d.lattice.h;
   t0 = Clock::now();
@@ -135,11 +143,77 @@ void Deformer::set_handles(const std::vector<int64_t>& indices) {
       throw InvalidInput("vertex " + std::to_string(v) + " is given twice as a handle (at " +
                          std::to_string(k) + ")");
   }
-  d.handles = indices;
-  d.handles_set = true;
-  d.rest_handles.resize(int64_t(indices.size()), 3);
-  for (size_t j = 0; j < indices.size(); ++j) d.rest_handles.row(j) = d.mesh.vertices.row(indices[j]);
-  d.prepare_handles();
+  HandleSpec spec;  // one group per vertex
+  spec.vertices = indices;
+  spec.group_offsets.resize(indices.size() + 1);
+  std::iota(spec.group_offsets.begin(), spec.group_offsets.end(), int64_t(0));
+  d.set_spec(std::move(spec));
+}
+
+void Deformer::set_handle_groups(const std::vector<std::vector<int64_t>>& groups,
+                                 const std::vector<double>& group_weights,
+                                 const std::vector<std::vector<double>>& vertex_weights) {
+  Impl& d = *impl_;
+  const int64_t n = d.mesh.num_vertices();
+  const size_t G = groups.size();
+  if (!group_weights.empty() && group_weights.size() != G)
+    throw InvalidInput("weights has " + std::to_string(group_weights.size()) + " entries for " +
+                       std::to_string(G) + " groups");
+  if (!vertex_weights.empty() && vertex_weights.size() != G)
+    throw InvalidInput("vertex_weights has " + std::to_string(vertex_weights.size()) +
+                       " arrays for " + std::to_string(G) + " groups");
+  HandleSpec spec;
+  spec.group_offsets.push_back(0);
+  std::unordered_map<int64_t, size_t> owner;  // vertex -> group
+  for (size_t g = 0; g < G; ++g) {
+    const auto& ids = groups[g];
+    if (!group_weights.empty() && !(group_weights[g] >= 0.0 && std::isfinite(group_weights[g])))
+      throw InvalidInput("weights[" + std::to_string(g) + "] must be a non-negative finite number, got " +
+                         std::to_string(group_weights[g]));
+    if (!vertex_weights.empty() && vertex_weights[g].size() != ids.size())
+      throw InvalidInput("vertex_weights[" + std::to_string(g) + "] has " +
+                         std::to_string(vertex_weights[g].size()) + " entries for the " +
+                         std::to_string(ids.size()) + " vertices of group " + std::to_string(g));
+    for (size_t k = 0; k < ids.size(); ++k) {
+      const int64_t v = ids[k];
+      if (v < 0 || v >= n)
+        throw InvalidInput("group " + std::to_string(g) + " holds vertex " + std::to_string(v) +
+                           ", out of range for " + std::to_string(n) + " vertices");
+      const auto [it, fresh] = owner.emplace(v, g);
+      if (!fresh)
+        throw InvalidInput("vertex " + std::to_string(v) + " is in group " + std::to_string(it->second) +
+                           (it->second == g ? " twice" : " and in group " + std::to_string(g)) +
+                           ": handle groups must be disjoint");
+      if (!vertex_weights.empty()) {
+        const double w = vertex_weights[g][k];
+        if (!(w >= 0.0 && std::isfinite(w)))
+          throw InvalidInput("vertex_weights[" + std::to_string(g) + "][" + std::to_string(k) +
+                             "] must be a non-negative finite number, got " + std::to_string(w));
+        spec.omega.push_back(w);
+      }
+      spec.vertices.push_back(v);
+    }
+    spec.group_offsets.push_back(int64_t(spec.vertices.size()));
+  }
+  spec.group_weights = group_weights;
+  d.set_spec(std::move(spec));
+}
+
+void Deformer::Impl::set_spec(HandleSpec next) {
+  next.rest.resize(int64_t(next.vertices.size()), 3);
+  for (size_t j = 0; j < next.vertices.size(); ++j) next.rest.row(j) = mesh.vertices.row(next.vertices[j]);
+  HandleSpec previous = std::move(spec);
+  const bool was_set = handles_set;
+  spec = std::move(next);
+  handles_set = true;
+  try {
+    prepare_handles();
+  } catch (...) {  // the Deformer stays usable with the handles it had
+    spec = std::move(previous);
+    handles_set = was_set;
+    if (handles_set) prepare_handles();
+    throw;
+  }
 }
 
 void Deformer::set_weights(WeightKind kind) {
@@ -165,13 +239,13 @@ void Deformer::Impl::prepare_handles() {
   const auto t0 = Clock::now();
   const Binding& b = binding();
   const int s = b.stencil_size();
-  const int64_t mh = static_cast<int64_t>(handles.size());
+  const int64_t mh = static_cast<int64_t>(spec.vertices.size());
   std::vector<int32_t> ids(size_t(mh) * s);
   std::vector<double> w(ids.size());
-  for (int64_t j = 0; j < mh; ++j) b.weights_of(lattice, handles[j], &ids[j * s], &w[j * s]);
-  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), gamma, size);
+  for (int64_t j = 0; j < mh; ++j) b.weights_of(lattice, spec.vertices[j], &ids[j * s], &w[j * s]);
+  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, size, origin);
   fine_anchored = hs.anchored;
-  hierarchy.set_handles(rest_handles, gamma, size);
+  hierarchy.set_handles(spec, gamma, size, origin);
   if (hs.m > 0) {
     try {
       backend->set_handles(hs);
@@ -196,30 +270,66 @@ void Deformer::Impl::replace_backend_with_cpu(const HandleSystem& hs, const OutO
 
 // ------------------------------------------------------------------------------------ posing
 void Deformer::solve(const double* targets, int iterations, double* out, double tolerance) {
-  impl_->solve(targets, iterations, out, tolerance);
+  impl_->solve(impl_->rows(targets), iterations, out, tolerance);
 }
 void Deformer::solve(const double* targets, int iterations, float* out, double tolerance) {
-  impl_->solve(targets, iterations, out, tolerance);
+  impl_->solve(impl_->rows(targets), iterations, out, tolerance);
+}
+void Deformer::solve_transforms(const double* transforms, int iterations, double* out, double tolerance) {
+  std::vector<Affine34> maps;
+  impl_->solve(impl_->maps(transforms, maps), iterations, out, tolerance);
+}
+void Deformer::solve_transforms(const double* transforms, int iterations, float* out, double tolerance) {
+  std::vector<Affine34> maps;
+  impl_->solve(impl_->maps(transforms, maps), iterations, out, tolerance);
 }
 
 void Deformer::pose(const double* targets, int iterations, double tolerance) {
-  impl_->pose_lattice(targets, iterations, tolerance);  // no handles: the lattice stays at rest
+  impl_->pose_lattice(impl_->rows(targets), iterations, tolerance);
+}
+void Deformer::pose_transforms(const double* transforms, int iterations, double tolerance) {
+  std::vector<Affine34> maps;
+  impl_->pose_lattice(impl_->maps(transforms, maps), iterations, tolerance);
 }
 
-const float* Deformer::solve_on_device(const double* targets, int iterations, double tolerance) {
+const float* Deformer::solve_on_device(const double* targets, int iterations, double tolerance,
+                                       bool transforms) {
   Impl& d = *impl_;
   if (d.backend->name() == "cpu")
     throw DeviceError("solve_on_device needs the CUDA backend; this Deformer runs on the CPU");
   const auto t0 = Clock::now();
-  d.pose_lattice(targets, iterations, tolerance);  // no handles: the lattice stays at rest
+  std::vector<Affine34> maps;
+  d.pose_lattice(transforms ? d.maps(targets, maps) : d.rows(targets), iterations, tolerance);
   const float* p = d.backend->transfer_on_device(d.binding(), d.stats);
   if (!p) throw DeviceError("this backend cannot leave the positions on the device");
   d.stats.ms_total = ms_since(t0);
   return p;
 }
 
+// G 4x4 row-major affine maps, checked: finite, last row (0, 0, 0, 1), not singular.
+HandleTargets Deformer::Impl::maps(const double* transforms, std::vector<Affine34>& storage) const {
+  if (!handles_set) throw StateError("solve() needs set_handles() or set_handle_groups() first");
+  const int64_t G = static_cast<int64_t>(spec.group_offsets.size()) - 1;
+  storage.resize(size_t(G));
+  for (int64_t g = 0; g < G; ++g) {
+    const Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> T(transforms + 16 * g);
+    const std::string name = "transforms[" + std::to_string(g) + "]";
+    if (!T.allFinite()) throw InvalidInput(name + " has a non-finite entry");
+    const double scale = std::max(1.0, T.cwiseAbs().maxCoeff());
+    if ((T.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 1e-9 * scale)
+      throw InvalidInput(name + " is not affine: its last row must be (0, 0, 0, 1)");
+    const Eigen::Matrix3d A = T.topLeftCorner<3, 3>();
+    const double norm = A.norm() / std::sqrt(3.0);
+    if (!(std::abs(A.determinant()) > 1e-9 * norm * norm * norm))
+      throw InvalidInput(name + " is singular (its 3x3 part has determinant " +
+                         std::to_string(A.determinant()) + ")");
+    storage[g] = T.topRows<3>();
+  }
+  return HandleTargets{nullptr, storage.data()};
+}
+
 template <typename T>
-void Deformer::Impl::solve(const double* targets, int iterations, T* out, double tolerance) {
+void Deformer::Impl::solve(const HandleTargets& targets, int iterations, T* out, double tolerance) {
   const auto t0 = Clock::now();
   if (!pose_lattice(targets, iterations, tolerance)) {  // no handles: the rest pose
     const int64_t n = mesh.num_vertices();
@@ -233,81 +343,54 @@ void Deformer::Impl::solve(const double* targets, int iterations, T* out, double
 
 // The lattice pose for `targets`: checks, start, coarse levels, fine iterations. False when
 // there are no handles (the lattice stays at rest).
-bool Deformer::Impl::pose_lattice(const double* targets, int iterations, double tolerance) {
+bool Deformer::Impl::pose_lattice(const HandleTargets& targets, int iterations, double tolerance) {
   check_solve_args(targets, iterations, tolerance);
   const auto t0 = Clock::now();
   stats.clear_solve();
-  const int64_t m = static_cast<int64_t>(handles.size());
-  if (m == 0) return false;
-  const RowMatrixX3d tgt = Eigen::Map<const RowMatrixX3d>(targets, m, 3);
-  choose_start(tgt);
+  if (spec.vertices.empty()) return false;
+  backend->set_targets(targets);
+  choose_start();
   stats.ms_start = ms_since(t0);
-  coarse_to_fine(tgt, iterations);
-  iterate_fine(tgt, iterations, tolerance);
+  coarse_to_fine(targets, iterations);
+  iterate_fine(iterations, tolerance);
   stats.ms_total = ms_since(t0);
   return true;
 }
 
-void Deformer::Impl::check_solve_args(const double* targets, int iterations, double tolerance) const {
-  if (!handles_set) throw StateError("solve() needs set_handles() first");
+void Deformer::Impl::check_solve_args(const HandleTargets& targets, int iterations, double tolerance) const {
+  if (!handles_set) throw StateError("solve() needs set_handles() or set_handle_groups() first");
   if (iterations < 0 || iterations > kMaxIterations)
     throw InvalidInput("iterations must be between 0 and " + std::to_string(kMaxIterations) +
                        ", got " + std::to_string(iterations));
   if (!(tolerance >= 0.0) || !std::isfinite(tolerance))
     throw InvalidInput("tolerance must be a non-negative number, got " + std::to_string(tolerance));
-  const int64_t m = static_cast<int64_t>(handles.size());
-  for (int64_t k = 0; k < 3 * m; ++k)
-    if (!std::isfinite(targets[k]))
-      throw InvalidInput("targets[" + std::to_string(k / 3) + "] has a non-finite coordinate");
+  if (targets.rows) {
+    const int64_t m = static_cast<int64_t>(spec.vertices.size());
+    for (int64_t k = 0; k < 3 * m; ++k)
+      if (!std::isfinite(targets.rows[k]))
+        throw InvalidInput("targets[" + std::to_string(k / 3) + "] has a non-finite coordinate");
+  }
 }
 
-// Smarter start for large moves: carry the previous pose by the best rigid motion of the
-// handles when that explains most of the move; and when the targets are close to a rigid
-// motion of the handles' rest positions, also try the rigidly moved rest pose.
-void Deformer::Impl::choose_start(const RowMatrixX3d& tgt) {
-  RowMatrixX3d current;
-  backend->handle_positions(current);
-  const double before = (current - tgt).squaredNorm();
-  Eigen::Matrix3d R;
-  Eigen::Vector3d t;
-  const double carried = rigid_fit(current, tgt, R, t);
-  if (carried < 0.5 * before) {
-    backend->apply_rigid(R, t);
-    hierarchy.apply_rigid(R, t);
-    stats.rigid_carry = true;
-  }
-  Eigen::Matrix3d R0;
-  Eigen::Vector3d t0;
-  const double from_rest = rigid_fit(rest_handles, tgt, R0, t0);
-  if (from_rest < std::min(before, carried)) {
-    const double e_prev = backend->energy(tgt);
-    RowMatrixX3d prev;
-    backend->get_pose(prev);
-    backend->set_pose(lattice.rest);
-    backend->apply_rigid(R0, t0);
-    const double e_rest = backend->energy(tgt);
-    if (!(e_rest < e_prev))
-      backend->set_pose(prev);
-    else
-      hierarchy.restart_rigid(R0, t0);
-  }
-}
+// Per lattice component (warm_start.h); handles that miss by less than 1e-7 of the model's size
+// count as not moved.
+void Deformer::Impl::choose_start() { warm_start(*backend, 1e-7 * diagonal, stats); }
 
 // Coarse to fine: the coarse levels' increment is added to the fine level's previous pose, so
 // fine detail of the previous pose is kept and large-scale motion arrives at once.
-void Deformer::Impl::coarse_to_fine(const RowMatrixX3d& tgt, int iterations) {
+void Deformer::Impl::coarse_to_fine(const HandleTargets& targets, int iterations) {
   if (hierarchy.size() == 0) return;
   const auto t0 = Clock::now();
-  const RowMatrixX3d increment = hierarchy.solve_increment(tgt, iterations, fine_anchored);
+  const RowMatrixX3d increment = hierarchy.solve_increment(targets, iterations, fine_anchored, 1e-7 * diagonal);
   RowMatrixX3d fine;
   backend->get_pose(fine);
   backend->set_pose(fine + increment);
   stats.ms_coarse = ms_since(t0);
 }
 
-void Deformer::Impl::iterate_fine(const RowMatrixX3d& tgt, int iterations, double tolerance) {
+void Deformer::Impl::iterate_fine(int iterations, double tolerance) {
   if (tolerance <= 0.0) {
-    backend->iterate(tgt, iterations, stats);
+    backend->iterate(iterations, stats);
     stats.iterations = iterations;
     return;
   }
@@ -315,7 +398,7 @@ void Deformer::Impl::iterate_fine(const RowMatrixX3d& tgt, int iterations, doubl
   int done = 0;
   while (done < iterations) {
     const int chunk = std::min(5, iterations - done);
-    backend->iterate(tgt, chunk, stats);
+    backend->iterate(chunk, stats);
     done += chunk;
     const auto& e = stats.energy;
     const size_t k = e.size();
@@ -334,7 +417,8 @@ RowMatrixX3d Deformer::lattice_deformed() const {
   impl_->backend->get_pose(p);
   return p;
 }
-const std::vector<int64_t>& Deformer::handles() const { return impl_->handles; }
+const std::vector<int64_t>& Deformer::handles() const { return impl_->spec.vertices; }
+int64_t Deformer::num_groups() const { return int64_t(impl_->spec.group_offsets.size()) - 1; }
 WeightKind Deformer::weights() const { return impl_->weights; }
 double Deformer::gamma() const { return impl_->gamma; }
 double Deformer::diagonal() const { return impl_->diagonal; }

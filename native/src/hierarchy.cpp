@@ -3,6 +3,7 @@
 #include "backend.h"
 #include "handle_system.h"
 #include "stencil.h"
+#include "warm_start.h"
 
 namespace larap {
 
@@ -68,16 +69,16 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
   }
 }
 
-void Hierarchy::set_handles(const RowMatrixX3d& rest_handles, double gamma, double size) {
-  const int64_t m = rest_handles.rows();
+void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin) {
+  const int64_t m = spec.rest.rows();
   for (auto& lv : levels_) {
     lv.anchored.clear();
     if (m == 0) continue;
-    const Binding hb = bind_vertices(lv.lattice, rest_handles, WeightKind::Trilinear);
+    const Binding hb = bind_vertices(lv.lattice, spec.rest, WeightKind::Trilinear);
     std::vector<int32_t> ids(size_t(m) * 8);
     std::vector<double> w(ids.size());
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
-    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), gamma, size);
+    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, size, origin);
     lv.anchored = hs.anchored;
     lv.backend->set_handles(hs);
   }
@@ -87,27 +88,18 @@ void Hierarchy::reset() {
   for (auto& lv : levels_) lv.backend->set_pose(lv.lattice.rest);
 }
 
-void Hierarchy::apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
-  for (auto& lv : levels_) lv.backend->apply_rigid(R, t);
-}
-
-void Hierarchy::restart_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t) {
-  for (auto& lv : levels_) {
-    lv.backend->set_pose(lv.lattice.rest);
-    lv.backend->apply_rigid(R, t);
-  }
-}
-
-RowMatrixX3d Hierarchy::solve_increment(const RowMatrixX3d& targets, int iterations,
-                                        const std::vector<uint8_t>& fine_anchored) {
+RowMatrixX3d Hierarchy::solve_increment(const HandleTargets& targets, int iterations,
+                                        const std::vector<uint8_t>& fine_anchored, double still) {
   SolveStats scratch;
   RowMatrixX3d delta;  // increment of the level just solved, in its nodes
   for (int l = size() - 1; l >= 0; --l) {
     Level& lv = levels_[l];
+    lv.backend->set_targets(targets);
+    warm_start(*lv.backend, still, scratch);
     RowMatrixX3d start;
     lv.backend->get_pose(start);
     if (l + 1 < size()) lv.backend->set_pose(start + levels_[l + 1].prolong(delta, lv.anchored));
-    lv.backend->iterate(targets, std::max(iterations, 1), scratch);
+    lv.backend->iterate(std::max(iterations, 1), scratch);
     RowMatrixX3d after;
     lv.backend->get_pose(after);
     delta = after - start;

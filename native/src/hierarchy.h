@@ -11,6 +11,7 @@
 // lives in native/cuda/.
 #pragma once
 #include <larap/lattice.h>
+#include <larap/solve_stats.h>
 #include <larap/mesh.h>
 
 #include <array>
@@ -20,6 +21,8 @@
 namespace larap {
 
 class Backend;
+struct HandleSpec;
+struct HandleTargets;
 
 class Hierarchy {
  public:
@@ -35,21 +38,18 @@ class Hierarchy {
   // Number of coarse levels (0: the fine lattice alone).
   int size() const;
 
-  // Binds handles with rest positions `rest_handles` (m by 3) on every coarse level.
-  void set_handles(const RowMatrixX3d& rest_handles, double gamma, double size);
+  // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level.
+  void set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin);
 
   // Every coarse level back to its rest pose.
   void reset();
-  // x -> R x + t on every coarse level's free nodes (a rigid carry of the previous pose).
-  void apply_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t);
-  // Every coarse level to its rest pose moved by x -> R x + t.
-  void restart_rigid(const Eigen::Matrix3d& R, const Eigen::Vector3d& t);
 
-  // Coarse to fine: each level iterates `iterations` times from its own previous pose plus the
-  // increment of the level above. Returns the increment of level 1 prolongated to the fine
-  // lattice (#fine nodes by 3), zero on the fine level's anchored nodes.
-  RowMatrixX3d solve_increment(const RowMatrixX3d& targets, int iterations,
-                               const std::vector<uint8_t>& fine_anchored);
+  // Coarse to fine: each level takes the targets, chooses its start (warm_start.h, `still` as
+  // there) and iterates `iterations` times from its own pose plus the increment of the level
+  // above. Returns the increment of level 1 prolongated to the fine lattice (#fine nodes by 3),
+  // zero on the fine level's anchored nodes.
+  RowMatrixX3d solve_increment(const HandleTargets& targets, int iterations,
+                               const std::vector<uint8_t>& fine_anchored, double still);
 
  private:
   struct Level;

@@ -43,15 +43,20 @@ def _deform(V, F, groups, args, out_path, template=None):
     t0 = time.perf_counter()
     d = Deformer(V, F, cells=args.cells, cell_size=args.cell_size, weights=args.weights,
                  gamma=args.gamma, device=args.device, levels=args.levels)
-    d.set_handles(idx)
-    X = d.solve(targets, iterations=args.iterations)
+    # Each group of the file is a handle group; one transform per group when every group has
+    # one, else the same targets vertex by vertex.
+    d.set_handle_groups([g.vertices for g in groups], weights=[g.weight for g in groups])
+    if groups and all(g.transform is not None for g in groups):
+        X = d.solve(transforms=np.stack([g.transform for g in groups]), iterations=args.iterations)
+    else:
+        X = d.solve(targets, iterations=args.iterations)
     wall = (time.perf_counter() - t0) * 1e3
     s = d.stats
     err = np.linalg.norm(X[idx] - targets, axis=1).max() / d.diagonal if len(idx) else 0.0
     save_mesh(out_path, X, F, template=template)
     e = s["energy"]
     print(f"larap: {d.num_vertices} vertices, {d.num_nodes} nodes ({d.num_cells} cells of "
-          f"{d.cell_size:.4g}), {len(idx)} handles, {d.weights} on {d.device} | "
+          f"{d.cell_size:.4g}), {len(idx)} handle vertices in {len(groups)} groups, {d.weights} on {d.device} | "
           f"ms: lattice {s['ms_lattice']:.1f}, binding {s['ms_binding']:.1f}, factorize "
           f"{s['ms_factorize']:.1f}, {s['iterations']} iterations: rotations {s['ms_rotations']:.1f} "
           f"rhs {s['ms_rhs']:.1f} solve {s['ms_solve']:.1f}, transfer {s['ms_transfer']:.1f}, "

@@ -154,14 +154,65 @@ class Deformer:
         self._handles_set = True
         self._warn_fallback()
 
-    def solve(self, targets, iterations: int = 5, *, out=None, tol=None) -> np.ndarray:
-        """Deformed vertices (n, 3) for handle targets (len(handles), 3), same order as the
-        handles. Warm-starts from the previous pose; `iterations` flip-flop steps (3-8 for
-        interaction, more for a converged result). `out`: optional C-contiguous (n, 3) float32 or
-        float64 array written in place and returned (float32 suits Blender's foreach_set).
-        `tol`: iterate until an iteration lowers the energy by less than tol * energy, at most
-        `iterations` times (stats["iterations"] says how many ran); for converged final poses."""
-        T, iterations, tol = self._solve_args("solve", targets, iterations, tol)
+    def set_handle_groups(self, groups, weights=None, vertex_weights=None) -> None:
+        """Handle groups, each moved by one transform at solve time (a vertex group driven by an
+        Empty or a bone). `groups`: a list of 1-D arrays of vertex ids, disjoint (a vertex in two
+        groups is a ValueError naming it and both groups). `weights`: one pull strength per group
+        (default 1: every group pulls the same whatever its size). `vertex_weights`: optional list
+        of per-vertex weights inside each group (same lengths; e.g. Blender's vertex-group
+        weights, a soft falloff at a group's edge; 0 = not a handle). Prefactorises like
+        set_handles; handles lists the vertices group by group."""
+        try:
+            parts = [np.asarray(g) for g in groups]
+        except TypeError:
+            raise TypeError(f"groups must be a list of 1-D integer arrays, got {type(groups).__name__}") from None
+        for g, a in enumerate(parts):
+            if a.ndim != 1:
+                raise ValueError(f"groups[{g}] must be a 1-D array of vertex ids, shape is {a.shape}")
+            if a.size and (a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.integer)):
+                raise TypeError(f"groups[{g}] must hold integer vertex ids, got dtype {a.dtype}")
+        sizes = np.array([a.size for a in parts], dtype=np.int64)
+        offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        ids = np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+        w = np.zeros(0) if weights is None else self._numbers("weights", weights, (len(parts),))
+        if vertex_weights is None:
+            vw = np.zeros(0)
+        else:
+            vw_parts = list(vertex_weights)
+            if len(vw_parts) != len(parts):
+                raise ValueError(f"vertex_weights has {len(vw_parts)} arrays for {len(parts)} groups")
+            vw = np.concatenate([self._numbers(f"vertex_weights[{g}]", a, (parts[g].size,))
+                                 for g, a in enumerate(vw_parts)] or [np.zeros(0)])
+        self._core.set_handle_groups(ids, offsets, w, vw)
+        self._handles_set = True
+        self._warn_fallback()
+
+    @staticmethod
+    def _numbers(name, values, shape) -> np.ndarray:
+        a = np.asarray(values)
+        if a.dtype == object or a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.number) \
+                or np.issubdtype(a.dtype, np.complexfloating):
+            raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+        if a.shape != shape:
+            raise ValueError(f"{name} should have shape {shape}, shape is {a.shape}")
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    @property
+    def num_groups(self) -> int:
+        """Handle groups (set_handles makes one per vertex)."""
+        return self._core.num_groups
+
+    def solve(self, targets=None, iterations: int = 5, *, transforms=None, out=None, tol=None) -> np.ndarray:
+        """Deformed vertices (n, 3) for the handles' targets: `targets` (len(handles), 3), one per
+        handle vertex in the order of handles, or `transforms` (num_groups, 4, 4), one affine map
+        per group in the mesh's coordinates (each group's targets are its rest positions mapped
+        by its transform; a pose then costs nothing per handle vertex). Warm-starts from the
+        previous pose; `iterations` flip-flop steps (3-8 for interaction, more for a converged
+        result). `out`: optional C-contiguous (n, 3) float32 or float64 array written in place
+        and returned (float32 suits Blender's foreach_set). `tol`: iterate until an iteration
+        lowers the energy by less than tol * energy, at most `iterations` times
+        (stats["iterations"] says how many ran); for converged final poses."""
+        T, iterations, tol, maps = self._solve_args("solve", targets, transforms, iterations, tol)
         if out is not None:
             if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float64):
                 raise TypeError("out must be a float32 or float64 numpy array")
@@ -169,31 +220,37 @@ class Deformer:
                 raise ValueError(f"out should have shape ({self._n}, 3), shape is {out.shape}")
             if not out.flags.c_contiguous or not out.flags.writeable:
                 raise ValueError("out must be C-contiguous and writeable")
-        return self._core.solve(T, iterations, out, tol)
+        return self._core.solve(T, iterations, out, tol, maps)
 
-    def pose_lattice(self, targets, iterations: int = 5, *, tol=None) -> np.ndarray:
+    def pose_lattice(self, targets=None, iterations: int = 5, *, transforms=None, tol=None) -> np.ndarray:
         """The same solve without the transfer to the vertices: poses the lattice only and returns
         its (N, 3) node positions (what a preview draws from, with cell_nodes() and
         trilinear_binding()). The next solve() warm-starts from this pose."""
-        T, iterations, tol = self._solve_args("pose_lattice", targets, iterations, tol)
-        self._core.pose(T, iterations, tol)
+        T, iterations, tol, maps = self._solve_args("pose_lattice", targets, transforms, iterations, tol)
+        self._core.pose(T, iterations, tol, maps)
         return self._core.lattice_deformed()
 
-    def solve_on_device(self, targets, iterations: int = 5, *, tol=None):
+    def solve_on_device(self, targets=None, iterations: int = 5, *, transforms=None, tol=None):
         """The same solve, leaving the positions on the GPU (device="cuda" only): returns a
         DeviceArray, (n, 3) float32 in device memory owned by this Deformer and valid until its
         next solve, with __cuda_array_interface__ (cupy.asarray / torch.as_tensor read it without a
         copy). RuntimeError on the CPU backend."""
-        T, iterations, tol = self._solve_args("solve_on_device", targets, iterations, tol)
-        return self._core.solve_on_device(T, iterations, tol)
+        T, iterations, tol, maps = self._solve_args("solve_on_device", targets, transforms, iterations, tol)
+        return self._core.solve_on_device(T, iterations, tol, maps)
 
-    def _solve_args(self, what, targets, iterations, tol):
-        """Checked (targets (m, 3) float64, iterations, tolerance) of a solve call."""
+    def _solve_args(self, what, targets, transforms, iterations, tol):
+        """(targets (m, 3) or transforms (G, 4, 4) as float64, iterations, tolerance, whether
+        they are transforms) of a solve call, converted."""
         if not self._handles_set:
-            raise RuntimeError(f"{what}() needs set_handles() first")
+            raise RuntimeError(f"{what}() needs set_handles() or set_handle_groups() first")
+        if (targets is None) == (transforms is None):
+            raise TypeError(f"{what}() takes targets or transforms (one of the two)")
         iterations = _integer("iterations", iterations)
         tol = 0.0 if tol is None else _real("tol", tol)
-        return _points("targets", targets, rows=len(self._core.handles)), iterations, tol
+        if targets is not None:
+            return _points("targets", targets, rows=len(self._core.handles)), iterations, tol, False
+        G = self._core.num_groups
+        return self._numbers("transforms", transforms, (G, 4, 4)), iterations, tol, True
 
     def reset(self) -> None:
         """Forget the pose: the next solve starts from the rest lattice."""

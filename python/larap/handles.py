@@ -11,7 +11,8 @@
 A group selects vertices by "vertices" (ids), "box" (min/max corners) or "sphere" (center,
 radius) and says where they go by "targets" (one position per vertex, with "vertices" only) or
 "transform" (scale, then rotation, both about "pivot" — default the group's centroid — then
-translation). A group with neither stays where it is.
+translation). A group with neither stays where it is. "weight" (default 1) is the group's pull
+strength: every group pulls the same whatever its size unless weights say otherwise.
 """
 from __future__ import annotations
 
@@ -29,8 +30,10 @@ class HandleError(ValueError):
 @dataclass
 class HandleGroup:
     name: str
-    vertices: np.ndarray  # (k,) int64
-    targets: np.ndarray   # (k, 3) float64
+    vertices: np.ndarray            # (k,) int64
+    targets: np.ndarray             # (k, 3) float64
+    transform: np.ndarray | None    # (4, 4) affine map of the rest positions, or None (targets given)
+    weight: float = 1.0
 
 
 def rotation_matrix(spec) -> np.ndarray:
@@ -116,6 +119,11 @@ def parse_handles(data, V: np.ndarray) -> list[HandleGroup]:
         ids = _select(group, where, V)
         if "targets" in group and "transform" in group:
             raise HandleError(f"{where}: give 'targets' or 'transform', not both")
+        weight = group.get("weight", 1.0)
+        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not math.isfinite(weight) \
+                or weight < 0:
+            raise HandleError(f"{where}: weight must be a non-negative number, got {weight!r}")
+        M = None
         if "targets" in group:
             if "vertices" not in group:
                 raise HandleError(f"{where}: 'targets' needs an explicit 'vertices' list")
@@ -136,12 +144,15 @@ def parse_handles(data, V: np.ndarray) -> list[HandleGroup]:
             if not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
                 raise HandleError(f"{where}: scale must be a positive number, got {s!r}")
             t = _vec3(tf["translate"], f"{where}: translate") if "translate" in tf else np.zeros(3)
-            T = (P - pivot) @ (s * R).T + pivot + t
+            M = np.eye(4)
+            M[:3, :3] = s * R
+            M[:3, 3] = pivot + t - s * R @ pivot
+            T = P @ M[:3, :3].T + M[:3, 3]
         for i in ids.tolist():
             if i in owner:
                 raise HandleError(f"vertex {i} is in both '{owner[i]}' and '{name}'")
             owner[i] = name
-        groups.append(HandleGroup(name, ids, T))
+        groups.append(HandleGroup(name, ids, T, M, float(weight)))
     return groups
 
 

@@ -77,11 +77,23 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   return std::make_unique<PyDeformer>(std::move(mesh), opt);
 }
 
-py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, double tolerance) {
+// The targets of a pose: (m, 3) row targets, or with `transforms` (G, 4, 4) group maps.
+void require_targets(const PyDeformer& self, const F64& targets, bool transforms) {
+  const auto info = targets.request();
+  if (!transforms) {
+    require_rows3(info, "targets", static_cast<int64_t>(self.engine.handles().size()));
+    return;
+  }
+  const int64_t G = self.engine.num_groups();
+  if (info.ndim != 3 || info.shape[0] != G || info.shape[1] != 4 || info.shape[2] != 4)
+    throw larap::InvalidInput("transforms must have shape (" + std::to_string(G) + ", 4, 4)");
+}
+
+py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, double tolerance,
+                bool transforms) {
   const larap::Deformer& d = self.engine;
-  const int64_t m = static_cast<int64_t>(d.handles().size());
   const int64_t n = d.mesh().num_vertices();
-  require_rows3(targets.request(), "targets", m);
+  require_targets(self, targets, transforms);
   py::array result;
   if (out.is_none()) {
     result = py::array_t<double>({n, int64_t(3)});
@@ -96,10 +108,14 @@ py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, d
   const double* t = targets.data();
   if (py::isinstance<py::array_t<float>>(result) && result.dtype().is(py::dtype::of<float>())) {
     float* o = static_cast<float*>(result.mutable_data());
-    self.locked([&](larap::Deformer& e) { e.solve(t, iterations, o, tolerance); });
+    self.locked([&](larap::Deformer& e) {
+      transforms ? e.solve_transforms(t, iterations, o, tolerance) : e.solve(t, iterations, o, tolerance);
+    });
   } else if (result.dtype().is(py::dtype::of<double>())) {
     double* o = static_cast<double*>(result.mutable_data());
-    self.locked([&](larap::Deformer& e) { e.solve(t, iterations, o, tolerance); });
+    self.locked([&](larap::Deformer& e) {
+      transforms ? e.solve_transforms(t, iterations, o, tolerance) : e.solve(t, iterations, o, tolerance);
+    });
   } else {
     throw larap::InvalidInput("out must be a float32 or float64 array");
   }
@@ -115,12 +131,13 @@ struct DeviceArray {
   py::object owner;  // keeps the Deformer alive
 };
 
-DeviceArray solve_on_device(py::object owner, F64 targets, int iterations, double tolerance) {
+DeviceArray solve_on_device(py::object owner, F64 targets, int iterations, double tolerance,
+                            bool transforms) {
   auto& self = owner.cast<PyDeformer&>();
-  const int64_t m = static_cast<int64_t>(self.engine.handles().size());
-  require_rows3(targets.request(), "targets", m);
+  require_targets(self, targets, transforms);
   const double* t = targets.data();
-  const float* p = self.locked([&](larap::Deformer& e) { return e.solve_on_device(t, iterations, tolerance); });
+  const float* p = self.locked(
+      [&](larap::Deformer& e) { return e.solve_on_device(t, iterations, tolerance, transforms); });
   return DeviceArray{reinterpret_cast<uintptr_t>(p), self.engine.mesh().num_vertices(), owner};
 }
 
@@ -158,16 +175,39 @@ void bind_deformer(py::module_& m) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
              self.locked([&](D& d) { d.set_handles(v); });
            })
+      .def("set_handle_groups",
+           // Groups as flat arrays: group g is ids[offsets[g]:offsets[g+1]]; weights (G,) or
+           // empty; vertex_weights aligned with ids, or empty.
+           [](PyDeformer& self, I64 ids, I64 offsets, F64 weights, F64 vertex_weights) {
+             const int64_t* o = offsets.data();
+             const int64_t G = offsets.size() - 1, total = ids.size();
+             if (G < 0 || o[0] != 0 || o[G] != total)
+               throw larap::InvalidInput("group offsets must run from 0 to the number of ids");
+             if (vertex_weights.size() != 0 && vertex_weights.size() != total)
+               throw larap::InvalidInput("vertex_weights must hold one weight per handle vertex");
+             std::vector<std::vector<int64_t>> groups(static_cast<size_t>(G));
+             std::vector<std::vector<double>> vw(vertex_weights.size() ? size_t(G) : 0);
+             for (int64_t g = 0; g < G; ++g) {
+               if (o[g + 1] < o[g]) throw larap::InvalidInput("group offsets must not decrease");
+               groups[g].assign(ids.data() + o[g], ids.data() + o[g + 1]);
+               if (!vw.empty()) vw[g].assign(vertex_weights.data() + o[g], vertex_weights.data() + o[g + 1]);
+             }
+             std::vector<double> w(weights.data(), weights.data() + weights.size());
+             self.locked([&](D& d) { d.set_handle_groups(groups, w, vw); });
+           })
       .def("solve", &solve, py::arg("targets"), py::arg("iterations") = 5, py::arg("out") = py::none(),
-           py::arg("tolerance") = 0.0)
+           py::arg("tolerance") = 0.0, py::arg("transforms") = false)
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
-           py::arg("tolerance") = 0.0)
-      .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance) {
-             const int64_t m = static_cast<int64_t>(self.engine.handles().size());
-             require_rows3(targets.request(), "targets", m);
+           py::arg("tolerance") = 0.0, py::arg("transforms") = false)
+      .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance, bool transforms) {
+             require_targets(self, targets, transforms);
              const double* t = targets.data();
-             self.locked([&](D& d) { d.pose(t, iterations, tolerance); });
-           }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0)
+             self.locked([&](D& d) {
+               transforms ? d.pose_transforms(t, iterations, tolerance) : d.pose(t, iterations, tolerance);
+             });
+           }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0,
+           py::arg("transforms") = false)
+      .def_property_readonly("num_groups", [](const PyDeformer& self) { return self.engine.num_groups(); })
       .def("reset", [](PyDeformer& self) { self.locked([](D& d) { d.reset(); }); })
       .def_property(
           "weights", [](const PyDeformer& self) { return std::string(larap::weight_kind_name(self.engine.weights())); },

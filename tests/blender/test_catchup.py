@@ -26,23 +26,24 @@ def key_bytes(obj):
 
 
 def fresh_engine(core, obj):
-    """A new engine for ``obj``'s rest shape and settings, with its handles: (deformer, targets)."""
+    """A new engine for ``obj``'s rest shape and settings, with its handle groups: (deformer, the
+    groups' transforms)."""
     s = obj.larap
     rt = core.ensure_runtime(obj, "full")
-    idx, tgt, _ = core.gather(obj, rt)
+    pose = core.gather(obj, rt)
     ids, offsets = core.polygons(obj.data)
     d = larap.Deformer(rt.rest, ids, face_offsets=offsets, cells=int(s.cells), gamma=float(s.gamma),
                        weights=s.weights_final)
-    d.set_handles(idx)
-    return d, tgt
+    d.set_handle_groups(pose.groups, weights=list(pose.weights), vertex_weights=pose.vertex_weights)
+    return d, pose.transforms
 
 
 def final_pose(core, obj):
     """The final pose of the current targets, solved by a fresh engine (no history at all)."""
     d, tgt = fresh_engine(core, obj)
     s = obj.larap
-    return d.solve(tgt, max(30, 10 * int(s.iterations)), out=np.empty((len(obj.data.vertices), 3), np.float32),
-                   tol=core.FINAL_TOLERANCE)
+    return d.solve(transforms=tgt, iterations=max(30, 10 * int(s.iterations)),
+                   out=np.empty((len(obj.data.vertices), 3), np.float32), tol=core.FINAL_TOLERANCE)
 
 
 def assert_caught_up(core, obj):
@@ -90,13 +91,13 @@ def test_fallback_writes_the_mesh_as_before(core):
     # Before issue 11, a live move was: the engine warm-started from the bind's final solve,
     # switched to the interactive weights, solved `iterations` steps, wrote the key.
     d, tgt0 = fresh_engine(core, obj)
-    d.solve(tgt0, max(30, 10 * obj.larap.iterations), tol=core.FINAL_TOLERANCE)
+    d.solve(transforms=tgt0, iterations=max(30, 10 * obj.larap.iterations), tol=core.FINAL_TOLERANCE)
     obj.larap.live = True
     live_move(targets)
     rt = core.runtime(obj)
     _, tgt1 = fresh_engine(core, obj)
     d.weights = obj.larap.weights_interactive
-    expect = d.solve(tgt1, obj.larap.iterations, out=np.empty((len(rest), 3), np.float32))
+    expect = d.solve(transforms=tgt1, iterations=obj.larap.iterations, out=np.empty((len(rest), 3), np.float32))
     assert np.array_equal(coords(obj, "LARAP").astype(np.float32), expect)
     assert rt.weights == "trilinear" and rt.needs_catchup and not preview.showing(obj)
     assert not obj.hide_get()
@@ -392,7 +393,7 @@ def test_preview_path_poses_the_lattice_and_hides_the_stale_mesh(core, gpu_previ
     cid, frac = rt.deformer.trilinear_binding()
     # The shader's transfer, in numpy: the trilinear blend of the cell's corner displacements,
     # against the engine's own transfer of a lattice (a 0-iteration solve transfers the lattice it has).
-    expect = rt.deformer.solve(core.gather(obj, rt)[1], 0)
+    expect = rt.deformer.solve(transforms=core.gather(obj, rt).transforms, iterations=0)
     disp = rt.deformer.lattice_deformed() - rt.deformer.lattice_rest()
     w = np.ones((len(cid), 8))
     for c in range(8):

@@ -11,15 +11,19 @@ from conftest import bar_with_handles, coords, diagonal
 
 @pytest.fixture
 def engine_calls(monkeypatch):
-    """Counts of set_handles and of the weights/gamma setters; reading handles, weights or gamma
+    """Counts of handle-group calls ("set_handles") and of the weights/gamma setters, and the
+    handle vertices the engine was last given ("vertices"); reading handles, weights or gamma
     back from the engine fails the test."""
     import larap
-    calls = {"set_handles": 0, "weights": 0, "gamma": 0}
-    real_set = larap.Deformer.set_handles
+    calls = {"set_handles": 0, "weights": 0, "gamma": 0, "vertices": None}
+    real_set = larap.Deformer.set_handle_groups
 
-    def set_handles(self, indices):
+    def set_handles(self, groups, *args, **kwargs):
         calls["set_handles"] += 1
-        return real_set(self, indices)
+        calls["vertices"] = None
+        result = real_set(self, groups, *args, **kwargs)
+        calls["vertices"] = np.sort(np.concatenate([np.asarray(g) for g in groups]))
+        return result
 
     def no_read(name):
         def fget(self):
@@ -34,7 +38,7 @@ def engine_calls(monkeypatch):
             real(self, value)
         return fset
 
-    monkeypatch.setattr(larap.Deformer, "set_handles", set_handles)
+    monkeypatch.setattr(larap.Deformer, "set_handle_groups", set_handles)
     monkeypatch.setattr(larap.Deformer, "handles", property(no_read("handles")))
     for name in ("weights", "gamma"):
         monkeypatch.setattr(larap.Deformer, name, property(no_read(name), counting(name)))
@@ -45,13 +49,14 @@ def test_engine_is_called_only_for_what_changed(core, engine_calls):
     obj, rest, left, right, targets = bar_with_handles(core)
     assert engine_calls["set_handles"] == 1  # bind: the handles, once
     rt = core.runtime(obj)
-    assert np.array_equal(rt.engine_handles, np.union1d(left, right))
+    assert np.array_equal(engine_calls["vertices"], np.union1d(left, right))
     before = dict(engine_calls)
     targets[1].location.z += 0.5
     bpy.context.view_layer.update()
     core.solve(obj, weights="final")
     core.solve(obj, weights="final")
-    assert engine_calls == before  # same handles, weights and gamma: no engine state call
+    assert engine_calls["set_handles"] == before["set_handles"]  # same handles, weights and gamma:
+    assert engine_calls["weights"] == before["weights"] and engine_calls["gamma"] == before["gamma"]  # no call
     pose = coords(obj, "LARAP")
     assert np.abs(pose[right, 2] - rest[right, 2] - 0.5).max() < 0.02 * diagonal(rest)
     # Interactive weights, then final again: one switch each way.
@@ -68,12 +73,12 @@ def test_engine_is_called_only_for_what_changed(core, engine_calls):
     obj.larap.handles[0].enabled = False
     core.solve(obj, weights="final")
     assert engine_calls["set_handles"] == before["set_handles"] + 1
-    assert np.array_equal(rt.engine_handles, right)
+    assert np.array_equal(engine_calls["vertices"], right)
     obj.larap.handles[0].enabled = True
     core.solve(obj, weights="final")
     core.solve(obj, weights="final")
     assert engine_calls["set_handles"] == before["set_handles"] + 2
-    assert np.array_equal(rt.engine_handles, np.union1d(left, right))
+    assert np.array_equal(engine_calls["vertices"], np.union1d(left, right))
     assert core.runtime(obj) is rt
 
 
@@ -82,16 +87,16 @@ def test_failed_engine_call_is_repeated_at_the_next_solve(core, engine_calls, mo
     obj, rest, left, right, targets = bar_with_handles(core)
     rt = core.runtime(obj)
     obj.larap.handles[0].enabled = False  # the next solve needs new handles
-    counting = larap.Deformer.set_handles
+    counting = larap.Deformer.set_handle_groups
 
-    def boom(self, indices):
+    def boom(self, groups, *args, **kwargs):
         raise MemoryError("simulated engine failure")
 
-    monkeypatch.setattr(larap.Deformer, "set_handles", boom)
+    monkeypatch.setattr(larap.Deformer, "set_handle_groups", boom)
     with pytest.raises(RuntimeError, match="out of memory"):
         bpy.ops.larap.solve()
     assert rt.engine_handles is None  # unknown: the engine may hold either set
-    monkeypatch.setattr(larap.Deformer, "set_handles", counting)
+    monkeypatch.setattr(larap.Deformer, "set_handle_groups", counting)
     obj.larap.handles[0].enabled = True  # back to what the engine had before the failed call
     before = engine_calls["set_handles"]
     targets[1].location.z += 0.5

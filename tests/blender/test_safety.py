@@ -526,7 +526,7 @@ def test_bind_memory_error_leaves_mesh_untouched(core, monkeypatch):
     h = obj.larap.handles[0]
     h_before = (tuple(h.rest_matrix), h.has_rest)
     obj.larap.handles[0].target.location.z += 1.0  # bind would record this as the new rest
-    for name in ("__init__", "set_handles", "solve"):
+    for name in ("__init__", "set_handle_groups", "solve"):
         before = key_state(obj)
         import larap
         if name == "__init__":

@@ -69,6 +69,25 @@ def test_deform_with_transform_and_targets(tmp_path, mesh_file):
     assert abs((X[tip] - V[tip])[:, 2].mean() - 1.0) < 0.05
 
 
+def test_groups_are_handle_groups_with_their_weight(tmp_path, mesh_file):
+    """Each group of the file pulls as one handle group: a small tip group next to a big base
+    group reaches its target, and a larger "weight" makes it pull harder."""
+    path, V = mesh_file
+    tip = np.flatnonzero(V[:, 0] > 3.8)
+    miss = []
+    for w in (1, 10):
+        h = handle_file(tmp_path, {"handles": [
+            {"name": "base", "box": {"min": [-1, -1, -1], "max": [1.5, 1, 1]}},
+            {"name": "tip", "vertices": tip.tolist(), "weight": w, "transform": {"translate": [0, 1.5, 0]}},
+        ]})
+        out = tmp_path / f"w{w}.ply"
+        assert main(["deform", str(path), "--handles", str(h), "--out", str(out), "--device", "cpu",
+                     "--iterations", "40"]) == 0
+        X, _ = larap.load_mesh(out)
+        miss.append(np.linalg.norm(X[tip] - (V[tip] + [0, 1.5, 0]), axis=1).mean())
+    assert miss[0] < 0.1 * 1.5 and miss[1] < 0.5 * miss[0], miss
+
+
 def test_rotation_forms(tmp_path, mesh_file):
     path, V = mesh_file
     outs = []
@@ -86,6 +105,8 @@ def test_rotation_forms(tmp_path, mesh_file):
     ({"handles": [{"box": {"min": [9, 9, 9], "max": [10, 10, 10]}}]}, "selects no vertex"),
     ({"handles": [{"vertices": [0, 1]}, {"vertices": [1, 2]}]}, "in both"),
     ({"handles": [{"vertices": [0], "targets": [[0, 0]]}]}, "targets"),
+    ({"handles": [{"vertices": [0], "weight": -1}]}, "weight"),
+    ({"handles": [{"vertices": [0], "weight": "heavy"}]}, "weight"),
     ({"handles": [{"vertices": [0], "transform": {"rotate": {"axis": [0, 0, 0], "angle": 3}}}]}, "axis"),
     ({"handles": [{"vertices": [0], "transform": {"shear": 1}}]}, "unknown"),
     ({"nothing": []}, "list 'handles'"),

@@ -1,15 +1,18 @@
 // larap::Deformer — bind once, pose many times.
 //
-//   Deformer d(mesh, options);        // lattice + binding (+ backend)
-//   d.set_handles({12, 40, 77});      // handle vertex ids; factorises the linear system
-//   d.solve(targets, 5, out);         // targets: #handles by 3; out: #V by 3 positions
+//   Deformer d(mesh, options);          // lattice + binding (+ backend)
+//   d.set_handle_groups({hand, foot});  // vertex groups; factorises the linear system
+//   d.solve_transforms(T, 5, out);      // T: one 4x4 affine map per group; out: #V by 3 positions
+// or, one target per handle vertex:
+//   d.set_handles({12, 40, 77});        // = three groups of one vertex
+//   d.solve(targets, 5, out);           // targets: #handles by 3
 //
 // Energy (scale-free gamma, see docs/method.md):
-//   E = gamma * s^2 * mean_edges(|r_e|^2 / h^2) + mean_handles(|B_j c' - t_j|^2)
-// where r_e is the ARAP residual of a directed lattice edge, h the cell size and s the radius
-// of gyration of the rest vertices. The same gamma behaves the same at any model scale, lattice
-// resolution and handle count: a uniform strain eps of the whole lattice costs as much as every
-// handle missing its target by sqrt(gamma) * eps * s.
+//   E = gamma * s^2 * mean_edges(|r_e|^2 / h^2) + sum_groups (w_g / G) * wmean_{j in g} |B_j c' - t_j|^2
+// where r_e is the ARAP residual of a directed lattice edge, h the cell size, s the radius of
+// gyration of the rest vertices, w_g a group's weight and wmean the mean over its vertices
+// weighted by the vertex weights. The same gamma behaves the same at any model scale, lattice
+// resolution and handle count, and a group pulls with its own weight whatever its size.
 //
 // Not thread-safe: a caller that shares one Deformer between threads serialises the calls (the
 // Python module does, per instance).
@@ -52,6 +55,13 @@ class Deformer {
   // Handle vertex ids (unique, in range). Factorises the linear system once per set. An empty
   // set is allowed: solve then gives the rest pose.
   void set_handles(const std::vector<int64_t>& indices);
+  // Handle groups: disjoint vertex id lists (a vertex in two groups is InvalidInput), each moved
+  // by one transform at solve time. group_weights: one pull strength per group (>= 0, empty = all
+  // 1); vertex_weights: per group, one weight per vertex (>= 0, empty = all 1; a soft falloff at a
+  // group's edge). Factorises like set_handles. handles() lists the vertices group by group.
+  void set_handle_groups(const std::vector<std::vector<int64_t>>& groups,
+                         const std::vector<double>& group_weights = {},
+                         const std::vector<std::vector<double>>& vertex_weights = {});
   // Switch the weights; keeps the lattice pose and re-prepares the current handles.
   void set_weights(WeightKind kind);
   void set_gamma(double gamma);
@@ -64,13 +74,20 @@ class Deformer {
   // an iteration lowers the energy by less than tolerance * energy (converged).
   void solve(const double* targets, int iterations, double* out, double tolerance = 0.0);
   void solve(const double* targets, int iterations, float* out, double tolerance = 0.0);
+  // The same with one affine map per group: transforms is #groups by 4 by 4 row-major (each
+  // group's targets are its rest positions mapped by its transform). Nothing per pose costs in
+  // proportion to the handle vertices.
+  void solve_transforms(const double* transforms, int iterations, double* out, double tolerance = 0.0);
+  void solve_transforms(const double* transforms, int iterations, float* out, double tolerance = 0.0);
   // The same solve without the transfer to the vertices: only the lattice is posed (read it with
   // lattice_deformed()). For drawing the pose from the lattice (a GPU preview).
   void pose(const double* targets, int iterations, double tolerance = 0.0);
+  void pose_transforms(const double* transforms, int iterations, double tolerance = 0.0);
   // The same solve, leaving the positions on the GPU: returns the device address of a #V by 3
   // float32 row-major array owned by the Deformer, valid until the next solve. Throws
-  // DeviceError on the CPU backend.
-  const float* solve_on_device(const double* targets, int iterations, double tolerance = 0.0);
+  // DeviceError on the CPU backend. transforms: `targets` holds the groups' 4x4 maps.
+  const float* solve_on_device(const double* targets, int iterations, double tolerance = 0.0,
+                               bool transforms = false);
 
   // ---------------------------------------------------------------------------- inspection
   const Lattice& lattice() const;
@@ -78,6 +95,7 @@ class Deformer {
   const Binding& binding() const;          // of the current weight kind
   RowMatrixX3d lattice_deformed() const;   // #N by 3 node positions of the current pose
   const std::vector<int64_t>& handles() const;
+  int64_t num_groups() const;              // handle groups (set_handles: one per vertex)
   WeightKind weights() const;
   double gamma() const;
   double diagonal() const;                 // bounding-box diagonal of the rest mesh

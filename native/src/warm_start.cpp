@@ -1,0 +1,64 @@
+#include "warm_start.h"
+
+#include <larap/solve_stats.h>
+
+#include <Eigen/SVD>
+
+#include "backend.h"
+#include "rigid_fit.h"
+
+namespace larap {
+
+double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& before) {
+  motion = ComponentMotion{};
+  before = std::max(0.0, m.pp.trace() - 2.0 * m.pt.trace() + m.tt);
+  if (!(m.w > 0.0)) return before;
+  const Eigen::Vector3d pc = m.p / m.w, tc = m.t / m.w;
+  const Eigen::Matrix3d cov_pp = m.pp - m.w * pc * pc.transpose();  // spread of the handles
+  const Eigen::Matrix3d cross = m.pt.transpose() - m.w * tc * pc.transpose();  // sum (t - tc)(p - pc)^T
+  const double spread_t = m.tt - m.w * tc.squaredNorm();
+  Eigen::JacobiSVD<Eigen::Matrix3d> spread(cov_pp);
+  const Eigen::Vector3d s = spread.singularValues();
+  // Collinear or single points: the rotation is not determined; translate only.
+  if (s[1] > 1e-10 * s[0] && s[0] > 0.0) motion.R = best_rotation(cross);
+  motion.t = tc - motion.R * pc;
+  motion.active = true;
+  // sum |R (p - pc) - (t - tc)|^2 = spread_p + spread_t - 2 tr(R^T cross)
+  return std::max(0.0, cov_pp.trace() + spread_t - 2.0 * (motion.R.transpose() * cross).trace());
+}
+
+void warm_start(Backend& backend, double still, SolveStats& stats) {
+  std::vector<ComponentMoments> now, rest;
+  backend.moments(/*rest=*/false, now);
+  backend.moments(/*rest=*/true, rest);
+  const size_t nc = now.size();
+  std::vector<ComponentMotion> carry(nc), from_rest(nc);
+  bool any_carry = false, any_rest = false;
+  for (size_t c = 0; c < nc; ++c) {
+    if (!(now[c].w > 0.0)) continue;
+    double before = 0.0, unused = 0.0;
+    const double carried = fit_rigid(now[c], carry[c], before);
+    if (before <= now[c].w * still * still) {  // its handles did not move: leave it exactly where it is
+      carry[c].active = false;
+      continue;
+    }
+    carry[c].active = carried < 0.5 * before;
+    any_carry |= carry[c].active;
+    const double rested = fit_rigid(rest[c], from_rest[c], unused);
+    from_rest[c].active = rested < std::min(before, carried);
+    any_rest |= from_rest[c].active;
+  }
+  if (any_carry) {
+    backend.apply_rigid(carry, /*from_rest=*/false);
+    stats.rigid_carry = true;
+  }
+  if (any_rest) {
+    const double e_prev = backend.energy();
+    RowMatrixX3d prev;
+    backend.get_pose(prev);
+    backend.apply_rigid(from_rest, /*from_rest=*/true);
+    if (!(backend.energy() < e_prev)) backend.set_pose(prev);
+  }
+}
+
+}  // namespace larap

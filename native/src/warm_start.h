@@ -1,0 +1,45 @@
+// Where a solve starts: per lattice component, the previous pose carried by the best rigid
+// motion of that component's handles when it explains most of their move, and the rigidly moved
+// rest pose when the targets are close to a rigid motion of the handles' rest positions and it
+// lowers the energy. A component whose handles did not move is left exactly where it was; parts
+// never jump because handles elsewhere moved.
+//
+// Everything is computed from per-component moments of the handle rows (Backend::moments), so
+// the cost is O(lattice nodes + components), whatever the number of handle vertices.
+#pragma once
+#include <Eigen/Core>
+#include <vector>
+
+namespace larap {
+
+class Backend;
+struct SolveStats;
+
+// Weighted sums over the handle rows j of one lattice component, for a lattice pose c', with
+// p_j = B_j c' - origin and t_j = target_j - origin:
+struct ComponentMoments {
+  double w = 0;                                  // sum alpha_j
+  Eigen::Vector3d p = Eigen::Vector3d::Zero();   // sum alpha_j p_j
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();   // sum alpha_j t_j
+  Eigen::Matrix3d pt = Eigen::Matrix3d::Zero();  // sum alpha_j p_j t_j^T
+  Eigen::Matrix3d pp = Eigen::Matrix3d::Zero();  // sum alpha_j p_j p_j^T
+  double tt = 0;                                 // sum alpha_j |t_j|^2
+};
+
+// x -> R x + t on one component's nodes (active), or nothing.
+struct ComponentMotion {
+  bool active = false;
+  Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();
+};
+
+// Best rigid motion taking the handles' current positions (moments m) to their targets; returns
+// the weighted residual after the motion, and in `before` the residual without it.
+double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& before);
+
+// Chooses the start of `backend`'s next iterations for the targets it holds (set_targets).
+// A component whose handles miss their targets by less than `still` (root mean square, a
+// length) counts as not moved. Sets stats.rigid_carry when some component was carried.
+void warm_start(Backend& backend, double still, SolveStats& stats);
+
+}  // namespace larap

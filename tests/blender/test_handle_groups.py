@@ -1,0 +1,102 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+# Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_handle_groups.py
+# Handles reach the engine as handle groups: one transform per handle, the vertex-group weights as
+# a soft falloff, a per-handle Weight; a pose does nothing per handle vertex in Python.
+import bpy
+import numpy as np
+import pytest
+
+from conftest import bar_with_handles, coords, diagonal
+
+
+def test_each_handle_is_one_group_moved_by_its_targets_transform(core, monkeypatch):
+    import larap
+    seen = {}
+    real = larap.Deformer.solve
+
+    def solve(self, targets=None, iterations=5, **kw):
+        seen["targets"], seen["transforms"] = targets, kw.get("transforms")
+        return real(self, targets, iterations, **kw)
+
+    monkeypatch.setattr(larap.Deformer, "solve", solve)
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.4
+    bpy.context.view_layer.update()
+    core.solve(obj, weights="final")
+    assert seen["targets"] is None and seen["transforms"].shape == (2, 4, 4)
+    np.testing.assert_allclose(seen["transforms"][1][:3, 3], [0, 0, 0.4], atol=1e-6)
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[right, 2] - rest[right, 2] - 0.4).max() < 0.02 * diagonal(rest)
+
+
+def test_a_pose_rebuilds_no_group(core):
+    """Moving targets reuses the groups built once (no per-vertex work in Python per pose)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    rt = core.runtime(obj)
+    cache = rt.group_cache
+    for z in (0.1, 0.2, 0.3):
+        targets[1].location.z = z
+        bpy.context.view_layer.update()
+        core.solve(obj, weights="interactive", validate="fast")
+    assert core.runtime(obj).group_cache is cache
+
+
+def _miss(obj, targets, right, rest, lift):
+    targets[1].location.z = lift
+    bpy.context.view_layer.update()
+    core_solve = __import__("larap_blender.core", fromlist=["solve"]).solve
+    core_solve(obj, weights="final")
+    pose = coords(obj, "LARAP")
+    return np.abs(pose[right, 2] - (rest[right, 2] + lift)).mean()
+
+
+def test_handle_weight_makes_it_pull_harder(core):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.gamma = 2.0  # stiff: the handles miss measurably
+    weak = _miss(obj, targets, right, rest, 1.0)
+    obj.larap.handles[1].weight = 6.0
+    strong = _miss(obj, targets, right, rest, 1.0)
+    assert strong < 0.5 * weak, (strong, weak)
+
+
+def test_vertex_group_weights_are_a_soft_falloff(core):
+    """A handle vertex painted with a small weight follows its target less than one painted 1."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.gamma = 2.0
+    vg = obj.vertex_groups["Right"]
+    inner = right[rest[right, 0] < np.median(rest[right, 0])]
+    full = _miss(obj, targets, right, rest, 1.0)  # every vertex of 'Right' painted 1
+    painted_one = coords(obj, "LARAP")
+    inner_miss_one = np.abs(painted_one[inner, 2] - (rest[inner, 2] + 1.0)).mean()
+    vg.add([int(i) for i in inner], 0.05, "REPLACE")  # the inner half painted 0.05
+    _miss(obj, targets, right, rest, 1.0)  # the membership is read again at the next full solve
+    painted_low = coords(obj, "LARAP")
+    inner_miss_low = np.abs(painted_low[inner, 2] - (rest[inner, 2] + 1.0)).mean()
+    assert inner_miss_low > inner_miss_one + 1e-4 * diagonal(rest), (inner_miss_low, inner_miss_one)
+    assert full < 0.05 * diagonal(rest)
+
+
+def test_overlapping_groups_first_handle_wins(core):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    both = np.flatnonzero(rest[:, 0] > 1.5)
+    vg = obj.vertex_groups["Left"]
+    vg.add([int(i) for i in both], 1.0, "REPLACE")  # 'Left' now also holds the right end
+    targets[1].location.z = 0.5
+    bpy.context.view_layer.update()
+    res = core.solve(obj, weights="final")
+    assert not res.warnings
+    pose = coords(obj, "LARAP")
+    # the right end belongs to the first handle ('Left', not moved): it stays
+    assert np.abs(pose[right, 2] - rest[right, 2]).max() < 0.02 * diagonal(rest)
+    rt = core.runtime(obj)
+    ids = np.concatenate(rt.group_cache[1])
+    assert len(ids) == len(np.unique(ids))
+
+
+@pytest.mark.parametrize("scale", [0.0])
+def test_target_scaled_to_zero_is_skipped_with_a_warning(core, scale):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].scale = (scale, scale, scale)
+    bpy.context.view_layer.update()
+    res = core.solve(obj, weights="final")
+    assert any("scaled to zero" in w for w in res.warnings)

@@ -74,9 +74,9 @@ def torus_with_faces(faces_wanted: int):
 
 
 def torus_groups(V):
-    """Three sectors of the torus, 5.7% of the vertices: held, lifted and turned, nudged."""
+    """Three sectors of the torus, 6% of the vertices: held, lifted and turned, nudged."""
     ang = np.arctan2(V[:, 1], V[:, 0])
-    w = 0.06 * np.pi
+    w = 0.02 * np.pi
     return [np.flatnonzero(np.abs(ang) < w), np.flatnonzero(np.abs(np.abs(ang) - np.pi) < w),
             np.flatnonzero(np.abs(ang - np.pi / 2) < w)]
 

@@ -66,15 +66,15 @@ def specs(work, pics):
                                  obj("bar_twist180", "surface_arap", (-0.5, -3, 0), ORANGE),
                                  obj("bar_twist180", "larap_bspline", (4.5, -3, 0), BLUE)]))
     if have("plate_bend90", "larap_bspline"):
-        out.append(dict(out=os.path.join(pics, "fig4_trilinear_vs_bspline.png"), view=[0.5, 1, -0.25], size=[1200, 600],
-                        zoom=0.55, objects=[obj("plate_bend90", "larap_trilinear", (0, 0, 0), ORANGE),
+        out.append(dict(out=os.path.join(pics, "fig4_trilinear_vs_bspline.png"), view=[0.3, 0.5, -1], size=[1200, 600],
+                        focus=[[0.5, -0.6, 0.0], [3.2, 2.6, 1.6]], objects=[obj("plate_bend90", "larap_trilinear", (0, 0, 0), ORANGE),
                                             obj("plate_bend90", "larap_bspline", (0, 2.0, 0), BLUE)]))
     if have("hand_finger", "larap_bspline"):
         objs = [obj("hand_finger", "rest", (0, 0, 0))]
         if have("hand_finger", "surface_arap"):
             objs.append(obj("hand_finger", "surface_arap", (0.8, 0, 0), ORANGE))
         objs.append(obj("hand_finger", "larap_bspline", (1.6, 0, 0), BLUE))
-        out.append(dict(out=os.path.join(pics, "hand_finger.png"), view=[0.35, -0.3, -1], size=[1200, 600],
+        out.append(dict(out=os.path.join(pics, "hand_finger.png"), view=[0.5, -0.2, -1], size=[1200, 600],
                         objects=objs))
     if have("truck_multipart", "larap_bspline"):
         out.append(dict(out=os.path.join(pics, "truck_multipart.png"), view=[0.6, 1, -0.5], size=[1200, 600],
@@ -84,7 +84,7 @@ def specs(work, pics):
     if char:
         objs = [obj("armadillo_arm", "rest", (0, 0, 0))] + [obj(c, "larap_bspline", (1.0 * (k + 1), 0, 0), BLUE)
                                                            for k, c in enumerate(char)]
-        out.append(dict(out=os.path.join(pics, "character_poses.png"), view=[0, 1, -0.15], size=[1400, 500],
+        out.append(dict(out=os.path.join(pics, "character_poses.png"), view=[0, -0.2, -1], size=[1400, 500],
                         objects=objs))
     if have("two_bars", "larap_bspline"):
         out.append(dict(out=os.path.join(pics, "two_bars.png"), view=[0.3, 1, -0.6], size=[1200, 500],
@@ -92,7 +92,7 @@ def specs(work, pics):
                                  obj("two_bars", "larap_bspline", (5, 0, 0), BLUE)] if have("two_bars", "surface_arap")
                         else [obj("two_bars", "larap_bspline", (0, 0, 0), BLUE)]))
     if have("armadillo_big", "larap_bspline"):
-        out.append(dict(out=os.path.join(pics, "million_vertices.png"), view=[0, 1, -0.15], size=[1000, 700],
+        out.append(dict(out=os.path.join(pics, "million_vertices.png"), view=[0, -0.2, -1], size=[1000, 600],
                         objects=[obj("armadillo_big", "rest", (0, 0, 0)),
                                  obj("armadillo_big", "larap_bspline", (1.0, 0, 0), BLUE)]))
     return out

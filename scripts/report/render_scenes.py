@@ -53,20 +53,28 @@ def render(spec):
         lo, hi = np.minimum(lo, X.min(0)), np.maximum(hi, X.max(0))
     if spec.get("focus"):
         lo, hi = np.asarray(spec["focus"][0], float), np.asarray(spec["focus"][1], float)
-    centre, size = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
     view = np.asarray(spec.get("view", (0.0, 1.0, -0.45)), float)
     view /= np.linalg.norm(view)
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-    cam.data.lens = 50
+    cam.data.type = "ORTHO"
     scene.collection.objects.link(cam)
-    cam.location = Vector((centre - view * size * 1.25 * spec.get("zoom", 1.0)).tolist())
-    cam.rotation_euler = Vector(view.tolist()).to_track_quat("-Z", "Z" if abs(view[2]) < 0.9 else "Y").to_euler()
+    rot = Vector(view.tolist()).to_track_quat("-Z", "Z" if abs(view[2]) < 0.9 else "Y").to_matrix()
+    R = np.array(rot)  # columns: camera x (right), y (up), z (back)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    local = corners @ R  # coordinates along the camera's axes
+    w, h = spec.get("size", (960, 540))
+    ext_x, ext_y = np.ptp(local[:, 0]), np.ptp(local[:, 1])
+    cam.data.ortho_scale = 1.08 * max(ext_x, ext_y * w / h) * spec.get("zoom", 1.0)
+    mid = np.array([local[:, 0].mean(), local[:, 1].mean(), local[:, 2].max() + np.ptp(local[:, 2]) + 1.0])
+    cam.location = Vector((R @ mid).tolist())
+    cam.rotation_euler = rot.to_euler()
+    cam.data.clip_end = 10 * (np.ptp(local[:, 2]) + 10)
     scene.camera = cam
     scene.render.engine = "BLENDER_WORKBENCH"
     scene.display.shading.light = "STUDIO"
     scene.display.shading.color_type = "MATERIAL"
     scene.display.shading.show_cavity = False
-    w, h = spec.get("size", (960, 540))
+    scene.display.shading.show_specular_highlight = True
     scene.render.resolution_x, scene.render.resolution_y = w, h
     scene.render.film_transparent = False
     scene.render.filepath = spec["out"]

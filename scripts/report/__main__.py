@@ -29,8 +29,8 @@ from larap import quality
 from . import api, cases, convergence, gpu, pictures, plots, quality_runs, summary, table, table1
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-BLENDER_SIZES = {"full": [20_000, 100_000, 400_000], "quick": [5_000], "tiny": []}
-BLENDER_TIMEOUT = {"full": 200, "quick": 120, "tiny": 60}
+BLENDER_SIZES = {"full": [20_000, 100_000, 300_000], "quick": [5_000], "tiny": []}
+BLENDER_TIMEOUT = {"full": 150, "quick": 120, "tiny": 60}
 
 
 def blender_cmd(script, *args):

@@ -74,11 +74,14 @@ def torus_with_faces(faces_wanted: int):
 
 
 def torus_groups(V):
-    """Three sectors of the torus, 6% of the vertices: held, lifted and turned, nudged."""
+    """Three sectors of the torus, each the whole rings nearest its angle holding at least 2.1%
+    of the vertices (6% or more together): held, lifted and turned, nudged."""
     ang = np.arctan2(V[:, 1], V[:, 0])
-    w = 0.02 * np.pi
-    return [np.flatnonzero(np.abs(ang) < w), np.flatnonzero(np.abs(np.abs(ang) - np.pi) < w),
-            np.flatnonzero(np.abs(ang - np.pi / 2) < w)]
+    groups = []
+    for centre in (0.0, np.pi, np.pi / 2):
+        dist = np.abs((ang - centre + np.pi) % (2 * np.pi) - np.pi)
+        groups.append(np.flatnonzero(dist <= np.quantile(dist, 0.021) + 1e-12))
+    return groups
 
 
 def torus_move(step):

@@ -58,8 +58,12 @@ def render(spec):
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     cam.data.type = "ORTHO"
     scene.collection.objects.link(cam)
-    rot = Vector(view.tolist()).to_track_quat("-Z", "Z" if abs(view[2]) < 0.9 else "Y").to_matrix()
-    R = np.array(rot)  # columns: camera x (right), y (up), z (back)
+    back = -view  # the camera looks down its -z; world z is up unless we look along it (then world y)
+    up_world = np.array([0.0, 0.0, 1.0]) if abs(view[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    right = np.cross(up_world, back)
+    right /= np.linalg.norm(right)
+    R = np.stack([right, np.cross(back, right), back], 1)  # columns: camera x (right), y (up), z (back)
+    rot = Matrix(R.tolist())
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     local = corners @ R  # coordinates along the camera's axes
     w, h = spec.get("size", (960, 540))

@@ -27,7 +27,6 @@ for p in (os.path.join(ROOT, "scripts"), os.path.join(ROOT, "addon"), os.path.jo
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from report import cases  # noqa: E402
 from report.blender_peers_geometry import bar  # noqa: E402
 
 

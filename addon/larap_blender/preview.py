@@ -24,6 +24,13 @@ visible (view-layer collections, Disable in Viewports, local view).
 :func:`blocker` says why the preview cannot show an object truthfully; the caller then writes
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
 pose key, other shape keys mixed in, display as wire/bounds, no GPU shader).
+
+Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
+contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the
+vertex shader reads, the uniform block ``_view_block`` packs is the ``LarapView`` struct the
+shaders declare, and the lighting values fill that block. About 120 of the lines are the GLSL
+itself. Read it in its banners' order: when the preview can show an object (and hiding it),
+per-binding data, the shader, lighting like Solid mode, drawing.
 """
 import bpy
 import numpy as np

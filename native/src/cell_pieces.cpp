@@ -167,9 +167,14 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }
   std::vector<int32_t> cell_tris(static_cast<size_t>(count[ns]));
   {
-    std::vector<int32_t> fill(count.begin(), count.end() - 1);
-    for (int64_t t = 0; t < nt; ++t)  // serial: triangles of a cell in increasing order
-      for_cells(t, [&](int32_t s, const Eigen::Vector3i&) { cell_tris[size_t(fill[s]++)] = int32_t(t); });
+    // In parallel: the order inside a cell's list varies, nothing computed from it does.
+    std::vector<std::atomic<int32_t>> fill(static_cast<size_t>(ns));
+    for (int64_t s = 0; s < ns; ++s) fill[s].store(count[s], std::memory_order_relaxed);
+    parallel_for(nt, [&](int64_t t) {
+      for_cells(t, [&](int32_t s, const Eigen::Vector3i&) {
+        cell_tris[size_t(fill[s].fetch_add(1, std::memory_order_relaxed))] = int32_t(t);
+      });
+    }, 2048);
   }
 
   // ---------------------------------------------------------------- candidates

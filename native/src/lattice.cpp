@@ -243,10 +243,12 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
   return g;
 }
 
-// Cells that count towards the `cells` target (grid cells; split copies count once).
+// Cells that count towards the `cells` target: the real cells and the 3x3x3 blocks around the
+// vertices' cells (the B-spline's reach), as before the stencil shell stopped being cells, so a
+// given `cells` gives the same cell size as before (split copies count once).
 int64_t count_kept(const Grid& g) {
   int64_t k = 0;
-  for (uint8_t m : g.marks) k += (m & kKept) != 0;
+  for (uint8_t m : g.marks) k += (m & (kKept | kDilation)) != 0;
   return k;
 }
 

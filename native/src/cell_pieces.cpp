@@ -138,43 +138,58 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
           if (geometry::triangle_box_overlap(centre, half, a, b, c)) visit(s, Eigen::Vector3i(x, y, z));
         }
   };
-  std::vector<int32_t> count(size_t(ns) + 1, 0);
+  // Pass 1 (parallel): a triangle inside one cell's range overlaps that cell (most triangles of
+  // a fine mesh); the others are tested cell by cell, and mark the neighbour masks.
+  std::vector<int32_t> tri_cell(static_cast<size_t>(nt), -1);  // -2: several cells
   std::vector<std::atomic<uint32_t>> shares(static_cast<size_t>(ns));  // 27-bit masks: shares a triangle with
   for (auto& m : shares) m.store(0, std::memory_order_relaxed);
-  {
-    std::vector<std::atomic<int32_t>> acount(static_cast<size_t>(ns));
-    for (auto& c : acount) c.store(0, std::memory_order_relaxed);
-    parallel_for(nt, [&](int64_t t) {
-      std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
-      int nseen = 0;
-      bool many = false;
-      for_cells(t, [&](int32_t s, const Eigen::Vector3i& c) {
-        acount[s].fetch_add(1, std::memory_order_relaxed);
-        if (nseen < 8) seen[nseen++] = {s, c};
-        else many = true;
-      });
-      (void)many;  // a triangle over more than 8 cells links its first 8 (enough for the masks'
-                   // purpose: their neighbours see it through their own overlaps)
-      for (int i = 0; i < nseen; ++i)
-        for (int j = 0; j < nseen; ++j) {
-          if (i == j) continue;
-          const Eigen::Vector3i o = seen[j].second - seen[i].second;
-          if (o.cwiseAbs().maxCoeff() > 1) continue;
-          shares[seen[i].first].fetch_or(1u << offset_bit(o), std::memory_order_relaxed);
-        }
-    }, 2048);
-    for (int64_t s = 0; s < ns; ++s) count[s + 1] = count[s] + acount[s].load(std::memory_order_relaxed);
+  parallel_for(nt, [&](int64_t t) {
+    Eigen::Vector3i c0, c1;
+    cell_range(t, c0, c1);
+    if (c0 == c1) {
+      tri_cell[t] = surf_of[g.index(c0)];
+      return;
+    }
+    tri_cell[t] = -2;
+    std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
+    int nseen = 0;
+    // A triangle over more than 8 cells links its first 8 (its other cells see it through
+    // their own overlaps with their neighbours).
+    for_cells(t, [&](int32_t sc, const Eigen::Vector3i& c) {
+      if (nseen < 8) seen[nseen++] = {sc, c};
+    });
+    for (int i = 0; i < nseen; ++i)
+      for (int j = 0; j < nseen; ++j) {
+        if (i == j) continue;
+        const Eigen::Vector3i o = seen[j].second - seen[i].second;
+        if (o.cwiseAbs().maxCoeff() > 1) continue;
+        shares[seen[i].first].fetch_or(1u << offset_bit(o), std::memory_order_relaxed);
+      }
+  }, 4096);
+  // Pass 2 (serial): the cells of the triangles over several cells, then counts and lists.
+  std::vector<int32_t> multi_off{0}, multi_cells;
+  for (int64_t t = 0; t < nt; ++t) {
+    if (tri_cell[t] != -2) continue;
+    for_cells(t, [&](int32_t sc, const Eigen::Vector3i&) { multi_cells.push_back(sc); });
+    multi_off.push_back(int32_t(multi_cells.size()));
   }
+  std::vector<int32_t> count(static_cast<size_t>(ns) + 1, 0);
+  for (int64_t t = 0; t < nt; ++t)
+    if (tri_cell[t] >= 0) ++count[tri_cell[t] + 1];
+  for (int32_t sc : multi_cells) ++count[sc + 1];
+  for (int64_t s = 0; s < ns; ++s) count[s + 1] += count[s];
   std::vector<int32_t> cell_tris(static_cast<size_t>(count[ns]));
   {
-    // In parallel: the order inside a cell's list varies, nothing computed from it does.
-    std::vector<std::atomic<int32_t>> fill(static_cast<size_t>(ns));
-    for (int64_t s = 0; s < ns; ++s) fill[s].store(count[s], std::memory_order_relaxed);
-    parallel_for(nt, [&](int64_t t) {
-      for_cells(t, [&](int32_t s, const Eigen::Vector3i&) {
-        cell_tris[size_t(fill[s].fetch_add(1, std::memory_order_relaxed))] = int32_t(t);
-      });
-    }, 2048);
+    std::vector<int32_t> fill(count.begin(), count.end() - 1);
+    size_t m = 0;
+    for (int64_t t = 0; t < nt; ++t) {
+      if (tri_cell[t] >= 0) {
+        cell_tris[size_t(fill[tri_cell[t]]++)] = int32_t(t);
+      } else if (tri_cell[t] == -2) {
+        for (int32_t q = multi_off[m]; q < multi_off[m + 1]; ++q) cell_tris[size_t(fill[multi_cells[q]]++)] = int32_t(t);
+        ++m;
+      }
+    }
   }
 
   // ---------------------------------------------------------------- candidates

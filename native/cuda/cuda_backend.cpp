@@ -138,6 +138,7 @@ class CudaBackend final : public Backend {
     inner_ = opt_.inner > 0 ? opt_.inner : (opt_.solver == cuda::Solver::Multigrid ? 2 : 8);
     graph_.reset();
     sys_.inner = inner_;
+    sys_.exact_residual = opt_.exact_residual;
     sys_.dots = dots_.reserve(size_t(inner_ + 1) * 6);
     sys_.coef = coef_.reserve(size_t(inner_ + 2) * 8);
     sys_.counters = counters_.reserve(size_t(inner_ + 1));

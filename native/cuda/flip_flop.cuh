@@ -135,6 +135,13 @@ __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
   return b;
 }
 
+// Row i of the global step's starting residual r = b - A x, as residual_at below but in float
+// from b and A x: the rounding of A x scales with |x| (kept only to measure; system.h).
+__device__ __forceinline__ float4 float_residual_at(const System& s, int i) {
+  const float4* x = s.x;
+  return rhs_at(s, i) - spmv_row(s, i, [&](int j) { return x[j]; });
+}
+
 // Row i of the global step's starting residual r = b - A x, A = 2 g L + M + a I_anchored, formed
 // so that nothing large cancels in float:
 //   r_i = g sum_j [(R_i + R_j)(c_i - c_j) - 2 (x_i - x_j)] + a (c_i - x_i) [anchored]
@@ -142,6 +149,7 @@ __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
 // The float terms are edge differences (their rounding scales with the cell size, not with the
 // distance from the frame's origin); the handle part is exact up to the rounding of x itself.
 __device__ __forceinline__ float4 residual_at(const System& s, int i) {
+  if (!s.exact_residual) return float_residual_at(s, i);
   const SlotEdges edges(s, i);
   float4 r = arap_rhs_at(s, edges, i);
   float4 lap = f4(0, 0, 0);  // sum_j (x_i - x_j)

@@ -73,6 +73,7 @@ struct System {
   int* iter = nullptr;           // flip-flop counter of the running solve
   double* energy = nullptr;      // 2 per flip-flop (unscaled): ARAP + anchors, c.(M c - 2 H)
   int inner = 8;                 // inner solver iterations per flip-flop
+  bool exact_residual = true;    // residual_at (true) or b - A x in float (measurement only)
   // Two-level preconditioner (solver "mg"): aggregates of fine nodes (coord >> shift), dense
   // inverse of the Galerkin coarse operator P^T A P, damped Jacobi smoothing (weight omega).
   int nc = 0;                          // coarse nodes

@@ -143,6 +143,28 @@ def test_killed_chunk_is_reported_and_rerun(shot, client, tmp_path):
     assert open(merged_path(str(out), "Bar"), "rb").read() == before
 
 
+def test_resume_rebakes_chunks_of_an_edited_shot(shot, client, tmp_path):
+    """The artist edits the animation, saves over the same file and re-runs with --resume into the
+    same folder: the old chunks are refused and baked again, never merged with the new ones."""
+    blend = str(tmp_path / "shot.blend")
+    shutil.copyfile(shot, blend)
+    kw = dict(frames=(1, 6), objects=["Bar"], chunk_size=3)
+    job, _, _ = _bake(blend, client, tmp_path / "bake", **kw)
+    old = _caches(job)["Bar"]
+    _, report, _ = _bake(blend, client, tmp_path / "bake", log={"resume": True}, **kw)
+    assert len(report.skipped) == 2 and not report.attempts  # unchanged file: both chunks kept
+    # The edit: the same shot keyed over 5 frames instead of 10 (the handle moves twice as fast).
+    raw = str(tmp_path / "edited-raw.blend")
+    subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", SCENE, "--",
+                    raw, "--two", "--rings", "21", "--frames", "5"], check=True, capture_output=True)
+    res = run_process(bind_command(raw, OBJECTS, 1, blend, addon_path=ADDON))
+    assert res["returncode"] == 0, res["output"]
+    job, report, _ = _bake(blend, client, tmp_path / "bake", log={"resume": True}, **kw)
+    assert report.skipped == [] and sorted(str(c) for c in report.attempts) == ["1-3", "4-6"]
+    new = _caches(job)["Bar"]
+    assert np.abs(new[1:] - old[1:]).max() > 0.05 * _diag(old)  # the edited animation, in every chunk
+
+
 def test_failing_chunk_script_fails_its_task(shot, tmp_path):
     job = BakeJob(blend=shot, objects=["Nope"], frame_start=1, frame_end=2, out_dir=str(tmp_path), chunk_size=2)
     res = run_process(chunk_command(job, job.chunks()[0], addon_path=ADDON), stamp=True)

@@ -25,7 +25,7 @@ if __name__ == "__main__" and __package__ in (None, ""):
     # Run as a file (--python): import the package this file belongs to.
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
-from larap.farm._blender import enable_addon, final_solve, find_objects, script_argv  # noqa: E402
+from larap.farm._blender import bind_state, enable_addon, final_solve, find_objects, script_argv  # noqa: E402
 from larap.farm.manifest import chunk_dir, chunk_pc2_path, write_manifest  # noqa: E402
 from larap.farm.pc2 import write_pc2  # noqa: E402
 from larap.farm.plan import MODES, BakeJob, Chunk, parse_frames  # noqa: E402
@@ -104,15 +104,17 @@ def main(argv=None):
     if c0 < first or c1 > last:
         raise ValueError(f"chunk {args.chunk} lies outside the bake's frames {args.job_frames}")
     chunk = Chunk(c0, c1, max(first, c0 - args.preroll) if args.mode == "warm" else c0)
+    signature = job.signature()  # hashes the .blend now, as close as possible to when Blender read it
     objs = find_objects(job.objects)
     positions, timing = bake_chunk(core, bpy.context.scene, objs, job, chunk)
+    binds = {obj.name: bind_state(core, obj) for obj in objs}
     t0 = time.perf_counter()
     os.makedirs(chunk_dir(job.out_dir), exist_ok=True)
     for name, P in positions.items():
         write_pc2(chunk_pc2_path(job.out_dir, name, chunk), P, chunk.start)
     timing["startup"] = started - args.launched_at if args.launched_at else 0.0
     timing["write"] = time.perf_counter() - t0
-    write_manifest(job.out_dir, chunk, job.signature(), {n: P.shape[1] for n, P in positions.items()}, timing)
+    write_manifest(job.out_dir, chunk, signature, {n: P.shape[1] for n, P in positions.items()}, timing, binds)
     timing["write"] = time.perf_counter() - t0
     pre = chunk.start - chunk.solve_start
     print(f"larap-farm chunk {chunk}: {len(objs)} object(s) x {chunk.frames} frames"

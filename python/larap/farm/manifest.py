@@ -2,7 +2,8 @@
 
 A chunk writes ``chunks/<object>.<start>-<end>.pc2`` for each object, then
 ``chunks/chunk.<start>-<end>.json`` (atomically, last): the manifest names each file with its
-size and SHA-256 and the bake's signature (plan.BakeJob.signature). No manifest: the chunk did not
+size, SHA-256 and bind-state fingerprint, and the bake's signature (plan.BakeJob.signature: the
+.blend's path and content hash, and the settings). No manifest: the chunk did not
 finish. A file whose size or checksum differs from its manifest is corrupt, and a manifest whose
 signature differs is a left-over of another bake: :func:`verify_chunk` says which.
 """
@@ -52,13 +53,15 @@ def sha256(path: str) -> str:
     return h.hexdigest()
 
 
-def write_manifest(out_dir: str, chunk, signature: dict, objects: dict, timing: dict) -> str:
-    """Record a finished chunk. ``objects``: name -> vertex count (its PC2 already written)."""
+def write_manifest(out_dir: str, chunk, signature: dict, objects: dict, timing: dict, binds=None) -> str:
+    """Record a finished chunk. ``objects``: name -> vertex count (its PC2 already written);
+    ``binds``: name -> the object's bind-state fingerprint in this chunk (_blender.bind_state)."""
     entries = {}
     for name, points in objects.items():
         path = chunk_pc2_path(out_dir, name, chunk)
         entries[name] = {"file": os.path.basename(path), "points": int(points),
-                         "bytes": os.path.getsize(path), "sha256": sha256(path)}
+                         "bytes": os.path.getsize(path), "sha256": sha256(path),
+                         "bind": (binds or {}).get(name)}
     doc = {"format": FORMAT, "version": VERSION, "chunk": [chunk.start, chunk.end],
            "solve_start": chunk.solve_start, "signature": signature, "objects": entries, "timing": timing}
     path = manifest_path(out_dir, chunk)
@@ -91,6 +94,9 @@ def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
     if doc.get("signature") != signature:
         diff = sorted(k for k in set(signature) | set(doc.get("signature") or {})
                       if (doc.get("signature") or {}).get(k) != signature.get(k))
+        if any(k in diff for k in ("blend", "blend_sha256")):
+            raise ChunkError(f"chunk {chunk}: baked from another .blend or another version of it "
+                             f"({', '.join(diff)} differ{'s' if len(diff) == 1 else ''}: the file changed since)")
         raise ChunkError(f"chunk {chunk}: left over from another bake (settings differ: {', '.join(diff)})")
     objects = doc.get("objects") or {}
     for name in signature.get("objects", []):

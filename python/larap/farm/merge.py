@@ -48,9 +48,10 @@ def merged_path(out_dir: str, obj: str) -> str:
 def check_chunks(job, load=False):
     """(manifests by chunk, problems [(chunk, message)])."""
     good, problems = {}, []
+    signature = job.signature()  # OSError when the .blend cannot be read: nothing to compare with
     for chunk in job.chunks():
         try:
-            good[chunk] = verify_chunk(job.out_dir, chunk, job.signature(), load=load)
+            good[chunk] = verify_chunk(job.out_dir, chunk, signature, load=load)
         except (ChunkError, OSError) as exc:
             problems.append((chunk, str(exc)))
     return good, problems
@@ -66,6 +67,14 @@ def merge_bake(job) -> dict:
         raise MergeError(f"merge refused: frames {frame_ranges(missing)} of {job.frame_start}-{job.frame_end} "
                          f"are not available ({len(problems)} of {len(job.chunks())} chunks):\n{lines}",
                          problems, missing)
+    for name in job.objects:
+        binds = {}
+        for chunk, doc in good.items():
+            binds.setdefault(doc["objects"][name].get("bind"), []).append(str(chunk))
+        if len(binds) != 1:
+            groups = "; ".join(f"chunks {', '.join(c)}" for c in binds.values())
+            raise MergeError(f"merge refused: object {name!r} was bound differently in different chunks ({groups}); "
+                             f"do all farm machines run the same LARAP add-on? Re-run the odd chunks", [], [])
     frames = job.frame_end - job.frame_start + 1
     summary = {"frames": [job.frame_start, job.frame_end], "mode": job.mode, "objects": {}}
     for name in job.objects:

@@ -101,11 +101,12 @@ def _shot(tmp_path, content=b"BLENDER-v304 the artist's shot, version 1"):
     return str(path)
 
 
-def _write_chunk(job, c, shift=0.0, binds=None):
-    """Chunk ``c`` of ``job`` as blender_chunk.py writes it: frame f of object k is filled with f + 100k + shift."""
+def _write_chunk(job, c, shift=0.0, binds=None, points=None):
+    """Chunk ``c`` of ``job`` as blender_chunk.py writes it: frame f of object k is filled with
+    f + 100k + shift, 5 + k points (``points``: name -> another count)."""
     counts = {}
     for k, name in enumerate(job.objects):
-        P = np.empty((c.frames, 5 + k, 3), np.float32)
+        P = np.empty((c.frames, (points or {}).get(name, 5 + k), 3), np.float32)
         for i, f in enumerate(range(c.start, c.end + 1)):
             P[i] = f + 100 * k + shift
         write_pc2(chunk_pc2_path(job.out_dir, name, c), P, c.start)
@@ -211,6 +212,95 @@ def test_merge_refuses_chunks_bound_differently(tmp_path):
     _write_chunk(job, job.chunks()[1], binds={"Bar": "bound-once", "Odd name/1": "another lattice"})
     err = _refused(job, "'Odd name/1' was bound differently", "chunks 1-4, 9-10; chunks 5-8")
     assert not os.path.exists(os.path.join(job.out_dir, "bake.json"))
+
+
+def _files(tmp_path):
+    return {p: open(os.path.join(tmp_path, p), "rb").read() for p in os.listdir(tmp_path)
+            if os.path.isfile(os.path.join(tmp_path, p))}
+
+
+def test_merge_refused_for_the_second_object_writes_nothing(tmp_path):
+    """The second object has another vertex count in one chunk: no object's cache and no bake.json
+    is written, nor any temporary file left, whether or not an earlier merge is there."""
+    job = _fake_bake(tmp_path)
+    _write_chunk(job, job.chunks()[1], points={"Odd name/1": 7})
+    before = _files(tmp_path)
+    assert before == {"shot.blend": before["shot.blend"]}
+    _refused(job, "'Odd name/1' has different vertex counts", "chunks 1-4, 9-10: 6; chunks 5-8: 7")
+    assert _files(tmp_path) == before
+    # With an earlier merged cache: it stays as it was, every file of it.
+    _write_chunk(job, job.chunks()[1], shift=0.0)
+    merge_bake(job)
+    before = _files(tmp_path)
+    _write_chunk(job, job.chunks()[1], shift=0.25, points={"Odd name/1": 7})
+    _refused(job, "different vertex counts")
+    assert _files(tmp_path) == before
+
+
+def test_merge_that_fails_while_streaming_renames_nothing(tmp_path):
+    """A chunk of the second object whose positions turn out not finite (checksum and header
+    valid): the first object's finished temporary file is never renamed into place."""
+    job = _fake_bake(tmp_path)
+    merge_bake(job)
+    before = _files(tmp_path)
+    c = job.chunks()[2]
+    path = chunk_pc2_path(job.out_dir, "Odd name/1", c)
+    raw = bytearray(open(path, "rb").read())
+    raw[32:36] = np.float32(np.nan).tobytes()
+    open(path, "wb").write(bytes(raw))
+    write_manifest(job.out_dir, c, job.signature(), {"Bar": 5, "Odd name/1": 6}, {},
+                   {n: "bound-once" for n in job.objects})
+    err = _refused(job, "chunk 9-10", "non-finite")
+    assert err.missing_frames == [9, 10]
+    assert _files(tmp_path) == before
+
+
+def test_merge_holds_one_chunk_at_a_time(tmp_path, monkeypatch):
+    """Memory: the merge never loads the chunks up front nor builds an object's whole cache; at
+    most one chunk's positions are alive at any time."""
+    import gc
+    import tracemalloc
+    import weakref
+    from larap.farm import manifest, merge, pc2
+    frames, points, size = 60, 20000, 4
+    job = BakeJob(blend=_shot(tmp_path), objects=["A", "B"], frame_start=1, frame_end=frames,
+                  out_dir=str(tmp_path), chunk_size=size)
+    os.makedirs(chunk_dir(job.out_dir))
+    rng = np.random.default_rng(3)
+    ref = {n: rng.normal(size=(frames, points, 3)).astype(np.float32) for n in job.objects}
+    for c in job.chunks():
+        for n in job.objects:
+            write_pc2(chunk_pc2_path(job.out_dir, n, c), ref[n][c.start - 1:c.end], c.start)
+        write_manifest(job.out_dir, c, job.signature(), {n: points for n in job.objects}, {},
+                       {n: "bound-once" for n in job.objects})
+    live, peak = [0], [0]
+
+    def counted(loader):
+        def load(*args, **kw):
+            out = loader(*args, **kw)
+            arrays = [a for a in (out if isinstance(out, tuple) else (out,)) if isinstance(a, np.ndarray)]
+            for a in arrays:
+                live[0] += 1
+                weakref.finalize(a, lambda: live.__setitem__(0, live[0] - 1))
+            peak[0] = max(peak[0], live[0])
+            return out
+        return load
+
+    monkeypatch.setattr(manifest, "read_pc2", counted(pc2.read_pc2))  # the loader the merge used to call
+    monkeypatch.setattr(merge, "_read_chunk", counted(getattr(merge, "_read_chunk", None)), raising=False)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        merge_bake(job)
+        _, most = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak[0] == 1, peak[0]
+    one_object = frames * points * 12
+    assert most < one_object / 4, (most, one_object)  # a chunk: 1/15 of an object, plus 1 MiB read blocks
+    for n in job.objects:
+        _, P = read_pc2(merged_path(job.out_dir, n))
+        assert np.array_equal(P, ref[n])
 
 
 def test_resume_rebakes_the_chunks_of_an_earlier_version_of_the_shot(tmp_path):

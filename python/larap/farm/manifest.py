@@ -14,7 +14,7 @@ import json
 import os
 import re
 
-from .pc2 import PC2Error, read_pc2, write_atomic
+from .pc2 import PC2Error, read_pc2, read_pc2_header, write_atomic
 
 FORMAT = "larap-farm-chunk"
 VERSION = 1
@@ -85,7 +85,8 @@ def read_manifest(out_dir: str, chunk) -> dict:
 
 def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
     """Check a finished chunk against the bake's signature and its files against the manifest.
-    Returns the manifest; with ``load``, each object entry gets "positions" (frames, points, 3).
+    Reads each file once for its checksum and its header, not its positions; with ``load``, each
+    object entry also gets "positions" (frames, points, 3), checked finite.
     Raises ChunkError naming the chunk and what is wrong."""
     doc = read_manifest(out_dir, chunk)
     if doc.get("chunk") != [chunk.start, chunk.end] or doc.get("solve_start") != chunk.solve_start:
@@ -112,13 +113,14 @@ def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
                              f"(truncated or overwritten)")
         if sha256(path) != entry["sha256"]:
             raise ChunkError(f"chunk {chunk}: {entry['file']} is corrupt (checksum differs from its manifest)")
-        if load:
-            try:
-                head, positions = read_pc2(path)
-            except PC2Error as exc:
-                raise ChunkError(f"chunk {chunk}: {exc}") from None
-            if head["samples"] != chunk.frames or int(head["start"]) != chunk.start or head["points"] != entry["points"]:
-                raise ChunkError(f"chunk {chunk}: {entry['file']} holds {head['samples']} frames from "
-                                 f"{head['start']:g} of {head['points']} points, not frames {chunk}")
-            entry["positions"] = positions
+        try:
+            head = read_pc2_header(path)  # a few bytes: the positions are read only with ``load``
+            if load:
+                head, entry["positions"] = read_pc2(path)
+        except PC2Error as exc:
+            raise ChunkError(f"chunk {chunk}: {exc}") from None
+        if head["samples"] != chunk.frames or int(head["start"]) != chunk.start or head["points"] != entry["points"]:
+            raise ChunkError(f"chunk {chunk}: {entry['file']} holds {head['samples']} frames from "
+                             f"{head['start']:g} of {head['points']} points, not frames {chunk} of "
+                             f"{entry['points']} points")
     return doc

@@ -71,7 +71,8 @@ function compileJob(job) {
     // The solver's arguments, shared by the chunks and the merge (which checks them in every chunk).
     const solver = ["--mode", mode, "--tol", String(s.tol || 1e-10), "--max-iterations", String(s.max_iterations || 1000),
                     "--out", s.bake_output];
-    if (mode === "warm" && s.warm_tol) solver.push("--warm-tol", String(s.warm_tol));
+    // Always explicit in warm mode, so chunks and merge agree; 0: the add-on's own final solve.
+    if (mode === "warm") solver.push("--warm-tol", String(s.warm_tol === undefined || s.warm_tol === null ? 1e-7 : s.warm_tol));
     const range = `${first}-${last}`;
 
     const chunkTasks = [];

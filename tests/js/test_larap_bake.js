@@ -128,6 +128,19 @@ const tests = {
         }
     },
 
+    "warm tolerance: 1e-7 by default, 0 for the add-on's own solve, always explicit in warm mode"() {
+        for (const [settings, want] of [[{ warm_tol: undefined }, "1e-7"], [{ warm_tol: 0 }, "0"],
+                                        [{ warm_tol: 1e-6 }, "0.000001"]]) {
+            const { tasks } = compile(settings);
+            for (const t of tasks) {
+                assert.strictEqual(opt(argsOf(t), "--warm-tol"), want, `${t.name} ${JSON.stringify(settings)}`);
+            }
+        }
+        const ctx = flamencoContext();
+        const setting = vm.runInContext("JOB_TYPE", ctx).settings.find((s) => s.key === "warm_tol");
+        assert.strictEqual(setting.default, 1e-7);
+    },
+
     "one chunk when the chunk is larger than the range"() {
         const { tasks } = compile({ frames: "5", chunk_size: 100 });
         assert.deepStrictEqual(tasks.map((t) => t.name), ["larap-chunk-5-5", "larap-merge"]);

@@ -94,20 +94,34 @@ def test_every_command_line_exits_nonzero_on_failure():
 # ------------------------------------------------------------------------------------------------
 # The merge
 
+def _shot(tmp_path, content=b"BLENDER-v304 the artist's shot, version 1"):
+    """A stand-in for the .blend (the merge only hashes it)."""
+    path = tmp_path / "shot.blend"
+    path.write_bytes(content)
+    return str(path)
+
+
+def _write_chunk(job, c, shift=0.0, binds=None, points=None):
+    """Chunk ``c`` of ``job`` as blender_chunk.py writes it: frame f of object k is filled with
+    f + 100k + shift, 5 + k points (``points``: name -> another count)."""
+    counts = {}
+    for k, name in enumerate(job.objects):
+        P = np.empty((c.frames, (points or {}).get(name, 5 + k), 3), np.float32)
+        for i, f in enumerate(range(c.start, c.end + 1)):
+            P[i] = f + 100 * k + shift
+        write_pc2(chunk_pc2_path(job.out_dir, name, c), P, c.start)
+        counts[name] = P.shape[1]
+    write_manifest(job.out_dir, c, job.signature(), counts, {"bind": 0.0, "solve": 0.0, "write": 0.0},
+                   binds or {n: "bound-once" for n in job.objects})
+
+
 def _fake_bake(tmp_path, chunk_size=4, objects=("Bar", "Odd name/1")):
     """A finished bake of frames 1-10 written without Blender: frame f of object k is filled with f + 100k."""
-    job = BakeJob(blend="shot.blend", objects=list(objects), frame_start=1, frame_end=10,
+    job = BakeJob(blend=_shot(tmp_path), objects=list(objects), frame_start=1, frame_end=10,
                   out_dir=str(tmp_path), chunk_size=chunk_size)
     os.makedirs(chunk_dir(job.out_dir), exist_ok=True)
     for c in job.chunks():
-        counts = {}
-        for k, name in enumerate(job.objects):
-            P = np.empty((c.frames, 5 + k, 3), np.float32)
-            for i, f in enumerate(range(c.start, c.end + 1)):
-                P[i] = f + 100 * k
-            write_pc2(chunk_pc2_path(job.out_dir, name, c), P, c.start)
-            counts[name] = P.shape[1]
-        write_manifest(job.out_dir, c, job.signature(), counts, {"bind": 0.0, "solve": 0.0, "write": 0.0})
+        _write_chunk(job, c)
     return job
 
 
@@ -161,13 +175,161 @@ def test_merge_refuses_a_corrupt_chunk_of_the_right_size(tmp_path):
 
 
 def test_merge_refuses_chunks_of_another_bake(tmp_path):
-    _fake_bake(tmp_path)
-    other = BakeJob(blend="shot.blend", objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
+    job = _fake_bake(tmp_path)
+    other = BakeJob(blend=job.blend, objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
                     out_dir=str(tmp_path), chunk_size=4, preroll=5)
     _refused(other, "another bake", "preroll")
-    other = BakeJob(blend="shot.blend", objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
+    other = BakeJob(blend=job.blend, objects=["Bar", "Odd name/1"], frame_start=1, frame_end=10,
                     out_dir=str(tmp_path), chunk_size=5)
     _refused(other, "frames 1-10", "not finished")
+
+
+def test_merge_refuses_chunks_of_an_earlier_version_of_the_shot(tmp_path):
+    """The artist edits the animation and saves: chunks baked from the old file are refused, even
+    with the same path, size and settings."""
+    job = _fake_bake(tmp_path)
+    merge_bake(job)
+    before = open(job.blend, "rb").read()
+    _shot(tmp_path, before.replace(b"version 1", b"version 2"))  # same size, other content
+    again = BakeJob(blend=job.blend, objects=job.objects, frame_start=1, frame_end=10, out_dir=job.out_dir,
+                    chunk_size=4)
+    assert again.signature()["blend_sha256"] != job.signature()["blend_sha256"]
+    err = _refused(again, "frames 1-10", "another version", "blend_sha256")
+    assert len(err.problems) == 3
+    # The same file under another path is another shot too.
+    os.makedirs(tmp_path / "copy")
+    other = _shot(tmp_path / "copy", before)
+    _refused(BakeJob(blend=other, objects=job.objects, frame_start=1, frame_end=10, out_dir=job.out_dir,
+                     chunk_size=4), "another version", "blend")
+    # A missing .blend: a clear error before anything is compared or written.
+    with pytest.raises(OSError, match="cannot read the bake's .blend"):
+        merge_bake(BakeJob(blend=str(tmp_path / "gone.blend"), objects=job.objects, frame_start=1, frame_end=10,
+                           out_dir=job.out_dir, chunk_size=4))
+
+
+def test_merge_refuses_chunks_bound_differently(tmp_path):
+    job = _fake_bake(tmp_path)
+    _write_chunk(job, job.chunks()[1], binds={"Bar": "bound-once", "Odd name/1": "another lattice"})
+    err = _refused(job, "'Odd name/1' was bound differently", "chunks 1-4, 9-10; chunks 5-8")
+    assert not os.path.exists(os.path.join(job.out_dir, "bake.json"))
+
+
+def _files(tmp_path):
+    return {p: open(os.path.join(tmp_path, p), "rb").read() for p in os.listdir(tmp_path)
+            if os.path.isfile(os.path.join(tmp_path, p))}
+
+
+def test_merge_refused_for_the_second_object_writes_nothing(tmp_path):
+    """The second object has another vertex count in one chunk: no object's cache and no bake.json
+    is written, nor any temporary file left, whether or not an earlier merge is there."""
+    job = _fake_bake(tmp_path)
+    _write_chunk(job, job.chunks()[1], points={"Odd name/1": 7})
+    before = _files(tmp_path)
+    assert before == {"shot.blend": before["shot.blend"]}
+    _refused(job, "'Odd name/1' has different vertex counts", "chunks 1-4, 9-10: 6; chunks 5-8: 7")
+    assert _files(tmp_path) == before
+    # With an earlier merged cache: it stays as it was, every file of it.
+    _write_chunk(job, job.chunks()[1], shift=0.0)
+    merge_bake(job)
+    before = _files(tmp_path)
+    _write_chunk(job, job.chunks()[1], shift=0.25, points={"Odd name/1": 7})
+    _refused(job, "different vertex counts")
+    assert _files(tmp_path) == before
+
+
+def test_merge_that_fails_while_streaming_renames_nothing(tmp_path):
+    """A chunk of the second object whose positions turn out not finite (checksum and header
+    valid): the first object's finished temporary file is never renamed into place."""
+    job = _fake_bake(tmp_path)
+    merge_bake(job)
+    before = _files(tmp_path)
+    c = job.chunks()[2]
+    path = chunk_pc2_path(job.out_dir, "Odd name/1", c)
+    raw = bytearray(open(path, "rb").read())
+    raw[32:36] = np.float32(np.nan).tobytes()
+    open(path, "wb").write(bytes(raw))
+    write_manifest(job.out_dir, c, job.signature(), {"Bar": 5, "Odd name/1": 6}, {},
+                   {n: "bound-once" for n in job.objects})
+    err = _refused(job, "chunk 9-10", "non-finite")
+    assert err.missing_frames == [9, 10]
+    assert _files(tmp_path) == before
+
+
+def test_merge_holds_one_chunk_at_a_time(tmp_path, monkeypatch):
+    """Memory: the merge never loads the chunks up front nor builds an object's whole cache; at
+    most one chunk's positions are alive at any time."""
+    import gc
+    import tracemalloc
+    import weakref
+    from larap.farm import manifest, merge, pc2
+    frames, points, size = 60, 20000, 4
+    job = BakeJob(blend=_shot(tmp_path), objects=["A", "B"], frame_start=1, frame_end=frames,
+                  out_dir=str(tmp_path), chunk_size=size)
+    os.makedirs(chunk_dir(job.out_dir))
+    rng = np.random.default_rng(3)
+    ref = {n: rng.normal(size=(frames, points, 3)).astype(np.float32) for n in job.objects}
+    for c in job.chunks():
+        for n in job.objects:
+            write_pc2(chunk_pc2_path(job.out_dir, n, c), ref[n][c.start - 1:c.end], c.start)
+        write_manifest(job.out_dir, c, job.signature(), {n: points for n in job.objects}, {},
+                       {n: "bound-once" for n in job.objects})
+    live, peak = [0], [0]
+
+    def counted(loader):
+        def load(*args, **kw):
+            out = loader(*args, **kw)
+            arrays = [a for a in (out if isinstance(out, tuple) else (out,)) if isinstance(a, np.ndarray)]
+            for a in arrays:
+                live[0] += 1
+                weakref.finalize(a, lambda: live.__setitem__(0, live[0] - 1))
+            peak[0] = max(peak[0], live[0])
+            return out
+        return load
+
+    monkeypatch.setattr(manifest, "read_pc2", counted(pc2.read_pc2))  # the loader the merge used to call
+    monkeypatch.setattr(merge, "_read_chunk", counted(getattr(merge, "_read_chunk", None)), raising=False)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        merge_bake(job)
+        _, most = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak[0] == 1, peak[0]
+    one_object = frames * points * 12
+    assert most < one_object / 4, (most, one_object)  # a chunk: 1/15 of an object, plus 1 MiB read blocks
+    for n in job.objects:
+        _, P = read_pc2(merged_path(job.out_dir, n))
+        assert np.array_equal(P, ref[n])
+
+
+def test_resume_rebakes_the_chunks_of_an_earlier_version_of_the_shot(tmp_path):
+    """--resume after the artist changed the .blend: no old chunk is kept, every one is baked
+    again, and the merged cache is the new version's."""
+    import concurrent.futures
+    from larap.farm.runner import run_bake
+    job = _fake_bake(tmp_path)
+    launched = []
+
+    def submit(fn, cmd, *args, name=""):
+        chunk = next(c for c in job.chunks() if str(c) == cmd[cmd.index("--chunk") + 1])
+        launched.append(str(chunk))
+        _write_chunk(current, chunk, shift=0.5)  # what Blender would bake from the new file
+        fut = concurrent.futures.Future()
+        fut.set_result({"returncode": 0, "seconds": 0.0, "output": ""})
+        return fut
+
+    current = BakeJob(blend=job.blend, objects=job.objects, frame_start=1, frame_end=10, out_dir=job.out_dir,
+                      chunk_size=4)
+    report = run_bake(current, submit, concurrent.futures.wait, resume=True, log=lambda *_: None)
+    assert launched == [] and len(report.skipped) == 3  # same file: every chunk kept
+    _shot(tmp_path, b"BLENDER-v304 the artist's shot, version 2")
+    current = BakeJob(blend=job.blend, objects=job.objects, frame_start=1, frame_end=10, out_dir=job.out_dir,
+                      chunk_size=4)
+    report = run_bake(current, submit, concurrent.futures.wait, resume=True, log=lambda *_: None)
+    assert sorted(launched) == ["1-4", "5-8", "9-10"] and report.skipped == []
+    _, P = read_pc2(merged_path(job.out_dir, "Bar"))
+    assert np.array_equal(P[:, 0, 0], np.arange(1, 11) + 0.5)
 
 
 def test_merge_ignores_temporary_files_of_killed_writers(tmp_path):
@@ -230,4 +392,5 @@ def test_flamenco_job_type_matches_the_python_commands():
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers()
     cli._job_args(sub.add_parser("merge"))
-    assert cli._job(parser.parse_args(merge)).signature() == job.signature()
+    merged = cli._job(parser.parse_args(merge))
+    assert merged.settings() == job.settings() and merged.blend == job.blend  # the .blend is hashed on the farm

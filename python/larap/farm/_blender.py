@@ -2,6 +2,8 @@
 their arguments after ``--``, and the LARAP add-on enabled with a clear error when it cannot be."""
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 
@@ -51,3 +53,20 @@ def final_solve(core, obj, tol=None, max_iterations=None, from_rest=True):
     core.runtime(obj).out (nothing is written to the file)."""
     return core.solve(obj, weights="final", validate="fast", write=False, tol=tol, max_iterations=max_iterations,
                       from_rest=from_rest)
+
+
+def bind_state(core, obj) -> str:
+    """A fingerprint (SHA-256) of what ``obj`` is bound to, as the engine of this process built it:
+    the rest shape and face topology the lattice was built on, the lattice resolution, the
+    stiffness and final weights, and each handle's group (its vertices and weights), target, rest
+    matrix, weight and switch. Chunks of one bake must agree on it (the merge checks): it catches
+    farm machines whose add-on binds the same file differently. Call after a solve (the handle
+    groups are read by it)."""
+    rt = core.runtime(obj)
+    s = obj.larap
+    state = {"rest": rt.rest_hash, "topology": rt.topology, "bind_topology": s.bind_topology,
+             "vertices": s.bind_vertex_count, "lattice": [str(v) for v in (rt.settings_sig or ())[:-1]],
+             "gamma": float(s.gamma), "weights": s.weights_final, "groups": rt.membership_hash,
+             "handles": [[h.vertex_group, h.target.name if h.target else "", h.subtarget, [float(v) for v in h.rest_matrix],
+                          float(h.weight), bool(h.enabled)] for h in s.handles]}
+    return hashlib.sha256(json.dumps(state, sort_keys=True).encode("utf-8")).hexdigest()

@@ -37,8 +37,8 @@ def _job_args(p, runs=False):
                    help="warm: frames warm-start within a chunk; rest: every frame from rest (chunking-independent)")
     p.add_argument("--tol", type=float, default=1e-10, help="tolerance of from-rest solves (default 1e-10)")
     p.add_argument("--max-iterations", type=int, default=1000, help="iteration cap of from-rest solves")
-    p.add_argument("--warm-tol", type=float, default=None,
-                   help="tolerance of warm-started solves (default: the add-on's final solve, 1e-5)")
+    p.add_argument("--warm-tol", type=float, default=1e-7,
+                   help="tolerance of warm-started solves (default 1e-7; 0: the add-on's final solve, 1e-5)")
     p.add_argument("--device", default="", choices=["", "cpu", "cuda", "auto"])
     p.add_argument("--out", required=True, help="bake folder")
     p.add_argument("--blender", default=os.environ.get("BLENDER", "blender"))
@@ -54,7 +54,7 @@ def _job(a) -> BakeJob:
     first, last = parse_frames(a.frames)
     return BakeJob(blend=os.path.abspath(a.blend), objects=a.object, frame_start=first, frame_end=last,
                    out_dir=os.path.abspath(a.out), chunk_size=a.chunk_size, preroll=a.preroll, mode=a.mode,
-                   tol=a.tol, warm_tol=a.warm_tol, max_iterations=a.max_iterations, device=a.device)
+                   tol=a.tol, warm_tol=a.warm_tol or None, max_iterations=a.max_iterations, device=a.device)
 
 
 def _run_kwargs(a):

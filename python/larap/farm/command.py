@@ -24,8 +24,8 @@ def chunk_args(job, chunk) -> list:
     args += ["--job-frames", f"{job.frame_start}-{job.frame_end}", "--chunk", f"{chunk.start}-{chunk.end}",
              "--mode", job.mode, "--tol", repr(float(job.tol)), "--max-iterations", str(job.max_iterations),
              "--out", job.out_dir]
-    if job.mode == "warm" and job.warm_tol is not None:
-        args += ["--warm-tol", repr(float(job.warm_tol))]
+    if job.mode == "warm":  # 0: the add-on's own final solve
+        args += ["--warm-tol", "0" if job.warm_tol is None else repr(float(job.warm_tol))]
     if job.mode == "warm" and job.preroll:
         args += ["--preroll", str(job.preroll)]
     if job.device:

@@ -2,7 +2,8 @@
 
 A chunk writes ``chunks/<object>.<start>-<end>.pc2`` for each object, then
 ``chunks/chunk.<start>-<end>.json`` (atomically, last): the manifest names each file with its
-size and SHA-256 and the bake's signature (plan.BakeJob.signature). No manifest: the chunk did not
+size, SHA-256 and bind-state fingerprint, and the bake's signature (plan.BakeJob.signature: the
+.blend's path and content hash, and the settings). No manifest: the chunk did not
 finish. A file whose size or checksum differs from its manifest is corrupt, and a manifest whose
 signature differs is a left-over of another bake: :func:`verify_chunk` says which.
 """
@@ -13,7 +14,7 @@ import json
 import os
 import re
 
-from .pc2 import PC2Error, read_pc2, write_atomic
+from .pc2 import PC2Error, read_pc2, read_pc2_header, write_atomic
 
 FORMAT = "larap-farm-chunk"
 VERSION = 1
@@ -52,13 +53,15 @@ def sha256(path: str) -> str:
     return h.hexdigest()
 
 
-def write_manifest(out_dir: str, chunk, signature: dict, objects: dict, timing: dict) -> str:
-    """Record a finished chunk. ``objects``: name -> vertex count (its PC2 already written)."""
+def write_manifest(out_dir: str, chunk, signature: dict, objects: dict, timing: dict, binds=None) -> str:
+    """Record a finished chunk. ``objects``: name -> vertex count (its PC2 already written);
+    ``binds``: name -> the object's bind-state fingerprint in this chunk (_blender.bind_state)."""
     entries = {}
     for name, points in objects.items():
         path = chunk_pc2_path(out_dir, name, chunk)
         entries[name] = {"file": os.path.basename(path), "points": int(points),
-                         "bytes": os.path.getsize(path), "sha256": sha256(path)}
+                         "bytes": os.path.getsize(path), "sha256": sha256(path),
+                         "bind": (binds or {}).get(name)}
     doc = {"format": FORMAT, "version": VERSION, "chunk": [chunk.start, chunk.end],
            "solve_start": chunk.solve_start, "signature": signature, "objects": entries, "timing": timing}
     path = manifest_path(out_dir, chunk)
@@ -82,7 +85,8 @@ def read_manifest(out_dir: str, chunk) -> dict:
 
 def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
     """Check a finished chunk against the bake's signature and its files against the manifest.
-    Returns the manifest; with ``load``, each object entry gets "positions" (frames, points, 3).
+    Reads each file once for its checksum and its header, not its positions; with ``load``, each
+    object entry also gets "positions" (frames, points, 3), checked finite.
     Raises ChunkError naming the chunk and what is wrong."""
     doc = read_manifest(out_dir, chunk)
     if doc.get("chunk") != [chunk.start, chunk.end] or doc.get("solve_start") != chunk.solve_start:
@@ -91,6 +95,9 @@ def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
     if doc.get("signature") != signature:
         diff = sorted(k for k in set(signature) | set(doc.get("signature") or {})
                       if (doc.get("signature") or {}).get(k) != signature.get(k))
+        if any(k in diff for k in ("blend", "blend_sha256")):
+            raise ChunkError(f"chunk {chunk}: baked from another .blend or another version of it "
+                             f"({', '.join(diff)} differ{'s' if len(diff) == 1 else ''}: the file changed since)")
         raise ChunkError(f"chunk {chunk}: left over from another bake (settings differ: {', '.join(diff)})")
     objects = doc.get("objects") or {}
     for name in signature.get("objects", []):
@@ -106,13 +113,14 @@ def verify_chunk(out_dir: str, chunk, signature: dict, load=False) -> dict:
                              f"(truncated or overwritten)")
         if sha256(path) != entry["sha256"]:
             raise ChunkError(f"chunk {chunk}: {entry['file']} is corrupt (checksum differs from its manifest)")
-        if load:
-            try:
-                head, positions = read_pc2(path)
-            except PC2Error as exc:
-                raise ChunkError(f"chunk {chunk}: {exc}") from None
-            if head["samples"] != chunk.frames or int(head["start"]) != chunk.start or head["points"] != entry["points"]:
-                raise ChunkError(f"chunk {chunk}: {entry['file']} holds {head['samples']} frames from "
-                                 f"{head['start']:g} of {head['points']} points, not frames {chunk}")
-            entry["positions"] = positions
+        try:
+            head = read_pc2_header(path)  # a few bytes: the positions are read only with ``load``
+            if load:
+                head, entry["positions"] = read_pc2(path)
+        except PC2Error as exc:
+            raise ChunkError(f"chunk {chunk}: {exc}") from None
+        if head["samples"] != chunk.frames or int(head["start"]) != chunk.start or head["points"] != entry["points"]:
+            raise ChunkError(f"chunk {chunk}: {entry['file']} holds {head['samples']} frames from "
+                             f"{head['start']:g} of {head['points']} points, not frames {chunk} of "
+                             f"{entry['points']} points")
     return doc

@@ -8,7 +8,10 @@ bake in one chunk is exactly the one-process bake.
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
+
+from .manifest import sha256
 
 MODES = ("warm", "rest")  # warm: later frames warm-start within the chunk; rest: every frame from rest
 
@@ -72,10 +75,12 @@ class BakeJob:
     """Everything a bake needs. ``objects``: names of bound meshes in ``blend``.
     ``tol``: relative energy decrease at which a from-rest solve stops (a chunk's first solved
     frame; every frame in "rest" mode), after at most ``max_iterations``. ``warm_tol``: the same
-    for warm-started frames; None keeps the add-on's own final solve (core.FINAL_TOLERANCE, at
-    most 10x the object's iterations), as its one-machine bake does. ``preroll``: frames solved
-    before each chunk and discarded, so that the warm start at the chunk's first frame is the one
-    a single process would have had (docs/farm.md has the measured effect).
+    for warm-started frames (default 1e-7: with the default pre-roll of 3, a chunked bake is then
+    within ~3e-8 of the bounding-box diagonal of a one-process bake, docs/farm.md); None keeps
+    the add-on's own final solve (core.FINAL_TOLERANCE 1e-5, at most 10x the object's
+    iterations), as its one-machine bake does, up to ~1e-4 of the diagonal from a one-process
+    bake. ``preroll``: frames solved before each chunk and discarded, so that the warm start at
+    the chunk's first frame is the one a single process would have had.
     ``device``: "" keeps each object's own setting."""
     blend: str
     objects: list
@@ -86,9 +91,10 @@ class BakeJob:
     preroll: int = 3
     mode: str = "warm"
     tol: float = 1e-10
-    warm_tol: float = None
+    warm_tol: float = 1e-7
     max_iterations: int = 1000
     device: str = ""
+    _blend_sha256: str = dataclasses.field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if not self.objects:
@@ -109,10 +115,30 @@ class BakeJob:
         return plan_chunks(self.frame_start, self.frame_end, self.chunk_size,
                            self.preroll if self.mode == "warm" else 0)
 
-    def signature(self) -> dict:
-        """What every chunk of this bake must share (checked by the merge): a chunk left over from
-        a bake with other settings is never merged."""
+    def settings(self) -> dict:
+        """The solver settings every chunk of this bake shares (part of :meth:`signature`)."""
         return {"frames": [self.frame_start, self.frame_end], "preroll": self.preroll if self.mode == "warm" else 0,
                 "mode": self.mode, "tol": float(self.tol), "max_iterations": self.max_iterations,
                 "warm_tol": None if self.warm_tol is None else float(self.warm_tol), "device": self.device,
                 "objects": list(self.objects)}
+
+    def blend_sha256(self) -> str:
+        """SHA-256 of the .blend's content, read once per BakeJob (the first call); OSError naming
+        the file when it cannot be read."""
+        if self._blend_sha256 is None:
+            self._blend_sha256 = file_sha256(self.blend)
+        return self._blend_sha256
+
+    def signature(self) -> dict:
+        """What every chunk of this bake must share (checked by the merge and by ``--resume``): the
+        shot (the .blend's absolute path and the SHA-256 of its content, so a chunk baked before
+        the artist changed the file is never merged) and the settings. A chunk left over from
+        another bake, or from another version of the shot, is never merged."""
+        return {"blend": os.path.abspath(self.blend), "blend_sha256": self.blend_sha256(), **self.settings()}
+
+
+def file_sha256(path: str) -> str:
+    try:
+        return sha256(path)
+    except OSError as exc:
+        raise OSError(f"cannot read the bake's .blend {path!r} to identify the shot: {exc.strerror or exc}") from None

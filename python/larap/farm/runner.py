@@ -44,7 +44,7 @@ class BakeReport:
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
 
-def _outcome(future, job, chunk):
+def _outcome(future, job, chunk, signature):
     """(ok, reason, manifest)."""
     try:
         res = future.result()
@@ -55,7 +55,7 @@ def _outcome(future, job, chunk):
         tail = "\n".join("      " + line for line in res["output"].splitlines()[-8:])
         return False, f"{what} after {res['seconds']:.1f} s; log ends:\n{tail}", None
     try:
-        return True, "", verify_chunk(job.out_dir, chunk, job.signature())
+        return True, "", verify_chunk(job.out_dir, chunk, signature)
     except (ChunkError, OSError) as exc:
         return False, f"Blender exited 0 but the chunk is not intact: {exc}", None
 
@@ -65,13 +65,16 @@ def run_bake(job, submit, wait, *, blender="blender", addon_path="", installed=F
     """Bake every chunk of ``job`` (plan.BakeJob), re-running failures, then merge (see module doc).
     ``resume``: keep chunks an earlier run of the same bake finished (verified), else start clean."""
     chunks = job.chunks()
+    # The shot (the .blend's path and content hash) and the settings: a chunk of another version of
+    # the file is never kept by --resume nor merged. OSError here when the .blend cannot be read.
+    signature = job.signature()
     os.makedirs(chunk_dir(job.out_dir), exist_ok=True)
     report = BakeReport(frames=job.frame_end - job.frame_start + 1, chunks=len(chunks))
     todo = []
     for chunk in chunks:
         if resume:
             try:
-                report.timing[chunk] = verify_chunk(job.out_dir, chunk, job.signature())["timing"]
+                report.timing[chunk] = verify_chunk(job.out_dir, chunk, signature)["timing"]
                 report.skipped.append(chunk)
                 continue
             except (ChunkError, OSError):
@@ -94,7 +97,7 @@ def run_bake(job, submit, wait, *, blender="blender", addon_path="", installed=F
         done, _ = wait(list(running), return_when="FIRST_COMPLETED")
         for fut in done:
             chunk = running.pop(fut)
-            ok, reason, doc = _outcome(fut, job, chunk)
+            ok, reason, doc = _outcome(fut, job, chunk, signature)
             n = report.attempts[chunk]
             if ok:
                 finished += 1

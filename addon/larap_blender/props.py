@@ -93,6 +93,10 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                        description="Approximate number of lattice cells (more: finer, slower)")
     cell_size: FloatProperty(name="Cell Size", default=0.1, min=1e-6, soft_min=1e-3, subtype="DISTANCE",
                              update=_redraw, description="Edge length of a lattice cell (object units)")
+    split_cells: BoolProperty(name="Parts Apart", default=True, update=_redraw,
+                              description="Parts that pass close through one lattice cell (fingers, an eye and "
+                              "its lid) get their own copy of the cell, so moving one never drags the other. "
+                              "Off: one cell for everything inside it (the lattice of older versions)")
     weights_interactive: EnumProperty(name="Dragging", items=WEIGHT_ITEMS, default="trilinear",
                                       description="How the mesh follows the lattice while you drag and in Live "
                                       "mode (Fast keeps dragging responsive)")

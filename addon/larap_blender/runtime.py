@@ -230,7 +230,7 @@ def _settings_sig(s):
         res = ("size", float(s.cell_size))
     else:
         res = ("auto",)
-    return res + (resolve_device(s),)
+    return res + (resolve_device(s), bool(s.split_cells))
 
 
 def _new_runtime(obj, rest, faces):
@@ -244,6 +244,7 @@ def _new_runtime(obj, rest, faces):
         kwargs["cells"] = int(s.cells)
     elif s.resolution_mode == "SIZE":
         kwargs["cell_size"] = float(s.cell_size)
+    kwargs["split_cells"] = bool(s.split_cells)
     ids, offsets = faces
     rt = Runtime()
     with engine_errors("Bind failed"):

@@ -279,6 +279,7 @@ class VIEW3D_PT_larap_settings(bpy.types.Panel):
                 row.label(text="%.3g m" % rt.deformer.cell_size)
             else:
                 row.label(text="set at bind")
+        layout.prop(s, "split_cells")
         layout.prop(s, "gamma")
         layout.prop(s, "iterations")
         layout.prop(s, "weights_interactive")

@@ -354,3 +354,22 @@ def test_polygons_reach_the_engine_as_blenders_own_csr(core):
     a = larap.Deformer(rest, ids, face_offsets=offsets, cells=300)
     b = larap.Deformer(rest, expected, cells=300)
     np.testing.assert_array_equal(a.lattice_rest(), b.lattice_rest())
+
+
+def test_keep_parts_apart_reaches_the_engine(core, monkeypatch):
+    """The "Parts Apart" setting (cell splitting, on by default) is what the engine is built
+    with, and changing it rebuilds the engine at the next solve."""
+    import larap
+    seen = []
+    real = larap.Deformer.__init__
+
+    def init(self, *a, **k):
+        seen.append(k.get("split_cells"))
+        real(self, *a, **k)
+
+    monkeypatch.setattr(larap.Deformer, "__init__", init)
+    obj, rest, left, right, targets = bar_with_handles(core)
+    assert obj.larap.split_cells and seen[-1] is True
+    obj.larap.split_cells = False
+    core.solve(obj, weights="final")
+    assert seen[-1] is False

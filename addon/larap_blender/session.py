@@ -7,7 +7,8 @@ with the interactive weights (the target matrix passed as an override, so the so
 for the depsgraph; Live leaves a mesh being dragged alone, see :func:`dragging`). With the
 preview (preview.py) a step poses only the lattice and the preview draws it; without it, the
 pose key is written. Confirm evaluates the moved target and writes the final pose of it (one
-pose per set of targets, as Live's catch-up would); cancel restores the pose key, the target's
+pose per set of targets, as Live's catch-up would; when that solve fails, confirm restores as
+cancel does and re-raises); cancel restores the pose key, the target's
 transform and what the pose key was recorded as, bit-exactly, and nothing solves again.
 :func:`handle_points` gives the handle vertices in the current pose, for picking and the overlay.
 """
@@ -186,6 +187,9 @@ class PoseSession:
         try:
             _evaluate_targets()
             self.last = solve(self.obj, weights="final", validate="fast")
+        except BaseException:
+            self._restore()  # a failed confirm is a cancel (the session is inactive afterwards)
+            raise
         finally:
             self._end()
         return self.last
@@ -195,22 +199,26 @@ class PoseSession:
         ends and nothing solves (Live sees the targets it last saw)."""
         if not self.active:
             return
-        obj = self.obj
         try:
-            _transform_restore(self.target, self.bone, self.transform)
-            if self.wrote:
-                restore_pose_key(obj, self.snapshot)
-            set_stored_signature(obj, self.stored)
-            preview.stop(obj)
-            _evaluate_targets()
-            rt = runtime(obj)
-            if rt is not None:
-                rt.needs_catchup = False
-                rt.lattice_nodes = None
-                rt.lattice_current = False
-                rt.pose_version += 1
-                rt.target_sig = target_signature(obj)
-                if rt.deformer is not None:
-                    rt.deformer.reset()
+            self._restore()
         finally:
             self._end()
+
+    def _restore(self):
+        """What cancel undoes (the session still active)."""
+        obj = self.obj
+        _transform_restore(self.target, self.bone, self.transform)
+        if self.wrote:
+            restore_pose_key(obj, self.snapshot)
+        set_stored_signature(obj, self.stored)
+        preview.stop(obj)
+        _evaluate_targets()
+        rt = runtime(obj)
+        if rt is not None:
+            rt.needs_catchup = False
+            rt.lattice_nodes = None
+            rt.lattice_current = False
+            rt.pose_version += 1
+            rt.target_sig = target_signature(obj)
+            if rt.deformer is not None:
+                rt.deformer.reset()

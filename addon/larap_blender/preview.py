@@ -23,7 +23,9 @@ visible (view-layer collections, Disable in Viewports, local view).
 
 :func:`blocker` says why the preview cannot show an object truthfully; the caller then writes
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
-pose key, other shape keys mixed in, display as wire/bounds, no GPU shader).
+pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
+artist). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
+it hidden as it found it.
 """
 import bpy
 import numpy as np
@@ -33,12 +35,13 @@ from .runtime import runtime
 # Kept across importlib.reload (F8 / re-enable), so a reload never orphans a callback or leaves
 # an object hidden that nothing knows about.
 _DRAW_HANDLE = globals().get("_DRAW_HANDLE")
-_SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool}: objects we hid
+_SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool, "hidden": bool}: objects we hid
 _GPU = {}  # runtime id -> _GpuMesh
 _SHADER = [None, ""]  # compiled shader, error message
 TEX_WIDTH = 2048  # texels per row of the lattice and cell textures
-# ID property set on an object while we hide it (1, or 2 when it was selected): an undo step or
-# an autosave taken meanwhile stores the hidden state with it, and reset_all() undoes it.
+# ID property set on an object while we hide it (1, or 2 when it was selected, 3 when it was
+# hidden already): an undo step or an autosave taken meanwhile stores the hidden state with it,
+# and reset_all() undoes it.
 HIDDEN_PROP = "_larap_preview_hidden"
 
 
@@ -69,6 +72,8 @@ def blocker(obj):
     view_layer = getattr(bpy.context, "view_layer", None)
     if view_layer is None or view_layer.objects.get(obj.name) != obj:
         return "not in the current view layer"
+    if obj.hide_get() and not showing(obj):
+        return "hidden"
     keys = obj.data.shape_keys
     kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
     if kb is None or not keys.use_relative:
@@ -111,11 +116,12 @@ def show(obj):
         return True
     try:
         selected = obj.select_get()
+        hidden = obj.hide_get()
         obj.hide_set(True)
     except RuntimeError:  # not in the current view layer
         return False
-    _SHOWN[key] = {"select": selected}
-    obj[HIDDEN_PROP] = 2 if selected else 1
+    _SHOWN[key] = {"select": selected, "hidden": hidden}
+    obj[HIDDEN_PROP] = 3 if hidden else 2 if selected else 1
     _tag_redraw()
     return True
 
@@ -129,16 +135,17 @@ def stop(obj):
     entry = _SHOWN.pop(key, None)
     if entry is None:
         return
-    _unhide(obj, entry["select"])
+    _unhide(obj, entry["select"], entry.get("hidden", False))
     _tag_redraw()
 
 
-def _unhide(obj, selected):
+def _unhide(obj, selected, hidden=False):
+    """Put back the object's own hiding and selection as :func:`show` found them."""
     try:
         if HIDDEN_PROP in obj:
             del obj[HIDDEN_PROP]
-        obj.hide_set(False)
-        if selected:
+        obj.hide_set(hidden)
+        if selected and not hidden:
             obj.select_set(True)
     except (RuntimeError, ReferenceError):
         pass
@@ -154,7 +161,7 @@ def reset_all():
         except ReferenceError:
             continue
         if mark is not None:
-            _unhide(obj, mark == 2)
+            _unhide(obj, mark == 2, mark == 3)
 
 
 def forget(key):
@@ -486,7 +493,8 @@ def draw():
         return
     for obj in view_layer.objects:
         try:
-            if obj.type != "MESH" or obj.larap.runtime_id not in _SHOWN:
+            entry = _SHOWN.get(obj.larap.runtime_id) if obj.type == "MESH" else None
+            if entry is None or entry.get("hidden", False):  # not ours, or hidden by the artist
                 continue
             rt = runtime(obj)
             if rt is None or rt.deformer is None or rt.lattice_nodes is None:

@@ -458,3 +458,28 @@ def test_undo_of_a_step_stored_during_the_preview_shows_the_object(core, gpu_pre
     assert not obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
     assert not gpu_preview.showing(obj)
     assert_caught_up(core, obj)
+
+
+def test_preview_leaves_a_mesh_the_artist_hid_hidden(core, gpu_preview):
+    """A live mesh hidden with H is posed by writing it (the preview would draw it) and stays
+    hidden after the catch-up; show()/stop() on a hidden mesh leave it hidden."""
+    from larap_blender import catchup
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    obj.hide_set(True)
+    assert gpu_preview.blocker(obj) == "hidden"
+    before = key_bytes(obj)
+    live_move(targets, 0.5)
+    assert key_bytes(obj) != before and not gpu_preview.showing(obj)  # written, not drawn
+    catchup.catch_up_all()
+    assert obj.hide_get()
+    assert_caught_up(core, obj)
+    # Defensive: a direct show() of a hidden mesh is undone to hidden (and never drawn).
+    assert gpu_preview.show(obj) and obj.get(gpu_preview.HIDDEN_PROP) == 3
+    gpu_preview.stop(obj)
+    assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
+    gpu_preview.show(obj)
+    gpu_preview.reset_all()
+    assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
+    obj.hide_set(False)
+    assert gpu_preview.blocker(obj) == ""

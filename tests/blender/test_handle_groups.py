@@ -100,3 +100,23 @@ def test_target_scaled_to_zero_is_skipped_with_a_warning(core, scale):
     bpy.context.view_layer.update()
     res = core.solve(obj, weights="final")
     assert any("scaled to zero" in w for w in res.warnings)
+
+
+def test_a_weight_painted_after_the_pose_makes_bake_solve_again(core):
+    """The stored pose signature covers the handle groups' content: after a converged pose, a
+    painted weight makes the pose key stale, and Bake writes the final pose of the new weights."""
+    from larap_blender import solving
+    from test_catchup import final_pose
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.8
+    targets[1].rotation_euler.x = 0.6
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    stale = coords(obj, "LARAP")
+    assert solving.key_up_to_date(obj)
+    middle = np.flatnonzero(np.abs(rest[:, 0]) < 0.15)
+    obj.vertex_groups["Right"].add([int(i) for i in middle], 1.0, "REPLACE")  # paint the middle in
+    assert bpy.ops.larap.bake_shape_key(name="Baked") == {"FINISHED"}
+    baked = coords(obj, "Baked")
+    assert np.abs(baked[middle] - stale[middle]).max() > 0.05 * diagonal(rest)
+    assert np.array_equal(baked.astype(np.float32), final_pose(core, obj))
+    assert solving.key_up_to_date(obj)

@@ -21,7 +21,7 @@ from .errors import LarapError, check_object
 from .mesh_data import key_positions, restore_pose_key
 from .runtime import ensure_runtime, runtime
 from .solving import set_stored_signature, solve, stored_signature
-from .targets import membership, target_alive, target_matrix, target_signature
+from .targets import flat, membership, target_alive, target_matrix, target_signature
 
 _DRAGGING = set()  # runtime ids of meshes with an active PoseSession
 
@@ -44,15 +44,31 @@ def _evaluate_targets():
 
 def handle_points(obj, refresh=True):
     """(world positions (k,3), handle index per point) of the handle vertices in the current pose.
-    ``refresh=False`` (draw callbacks): use the cached vertex-group membership, never touch data."""
+    ``refresh=False`` (draw callbacks, hover): use the cached vertex-group membership, never touch
+    data. Cached in the runtime per pose (``rt.pose_version``), handle groups and object matrix, so
+    hovering reads the pose key once, not at each mouse move; the arrays are read-only."""
     rt = runtime(obj)
     s = obj.larap
     if rt is None or rt.rest is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    groups = membership(obj, rt) if refresh else rt.membership
+    key = (rt.pose_version, rt.membership_hash, s.shape_key, tuple(flat(obj.matrix_world)),
+           tuple((h.vertex_group, h.enabled) for h in s.handles))
+    cached = rt.handle_points
+    if cached is not None and cached[0] == key:
+        return cached[1], cached[2]
+    pts, owner = _handle_points(obj, rt, groups)
+    pts.setflags(write=False)
+    owner.setflags(write=False)
+    rt.handle_points = (key, pts, owner)
+    return pts, owner
+
+
+def _handle_points(obj, rt, groups):
+    s = obj.larap
     posed = key_positions(obj, s.shape_key)
     if posed is None:
         posed = rt.rest
-    groups = membership(obj, rt) if refresh else rt.membership
     pts, owner = [], []
     for i, h in enumerate(s.handles):
         idx = groups.get(h.vertex_group)

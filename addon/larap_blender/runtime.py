@@ -47,6 +47,7 @@ class Runtime:
         self.validated = False  # False: the next ensure_runtime does a full validation
         self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
         self.handle_points = None  # (key, points, owner): session.handle_points of the last pose
+        self.handle_binding = None  # the handle vertices' lattice cells and weights (session.py)
         # Preview and catch-up (preview.py, catchup.py): the lattice of the last interactive pose,
         # whether the pose key is behind what is shown, when the targets last moved, and how
         # many times the engine solved (tests count them).

@@ -483,3 +483,27 @@ def test_preview_leaves_a_mesh_the_artist_hid_hidden(core, gpu_preview):
     assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
     obj.hide_set(False)
     assert gpu_preview.blocker(obj) == ""
+
+
+def test_handle_points_follow_the_preview_not_the_stale_key(core, gpu_preview):
+    """While the preview shows a drag, the handle vertices (picking, overlay) are where the
+    preview draws them (the engine's transfer of the preview's lattice), not in the pose key."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.location = (0.3, -0.2, 0.1)  # world points: the object's matrix applies
+    bpy.context.view_layer.update()
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.4, 0.6))
+    assert gpu_preview.showing(obj)
+    rt = core.runtime(obj)
+    pts, owner = core.handle_points(obj, refresh=False)
+    mw = np.array(obj.matrix_world)
+    local = (pts - mw[:3, 3]) @ np.linalg.inv(mw[:3, :3]).T
+    # The engine's own transfer of the lattice it holds (a 0-iteration solve transfers it).
+    expect = rt.deformer.solve(transforms=core.gather(obj, rt).transforms, iterations=0)
+    tol = 1e-5 * rt.deformer.diagonal
+    assert np.abs(local[owner == 1] - expect[right]).max() < tol
+    assert np.abs(local[owner == 0] - expect[left]).max() < tol
+    assert np.abs(local[owner == 1] - coords(obj, "LARAP")[right]).max() > 0.3  # the key is behind
+    session.cancel()
+    pts, owner = core.handle_points(obj, refresh=False)
+    assert np.abs(pts[owner == 1] - (coords(obj, "LARAP")[right] @ mw[:3, :3].T + mw[:3, 3])).max() < 1e-6

@@ -93,13 +93,26 @@ def test_overlapping_groups_first_handle_wins(core):
     assert len(ids) == len(np.unique(ids))
 
 
-@pytest.mark.parametrize("scale", [0.0])
+@pytest.mark.parametrize("scale", [(0.0, 0.0, 0.0), (1.0, 1.0, 1e-10), (100.0, 100.0, 1e-9)])
 def test_target_scaled_to_zero_is_skipped_with_a_warning(core, scale):
+    """A target the engine would reject as singular (relative to its size) is skipped with a
+    warning; the other handle still poses."""
     obj, rest, left, right, targets = bar_with_handles(core)
-    targets[1].scale = (scale, scale, scale)
+    targets[1].scale = scale
+    targets[0].location.z += 0.5
     bpy.context.view_layer.update()
     res = core.solve(obj, weights="final")
-    assert any("scaled to zero" in w for w in res.warnings)
+    assert any("'Right' skipped" in w and "scaled to zero" in w for w in res.warnings)
+    assert res.handles == len(left)
+    assert np.abs(coords(obj, "LARAP")[left, 2] - rest[left, 2] - 0.5).max() < 0.02 * diagonal(rest)
+
+
+def test_a_small_uniform_scale_is_not_singular(core):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].scale = (1e-5, 1e-5, 1e-5)  # below the old absolute 1e-12
+    bpy.context.view_layer.update()
+    res = core.solve(obj, weights="final")
+    assert not res.warnings and res.handles == len(left) + len(right)
 
 
 def test_a_weight_painted_after_the_pose_makes_bake_solve_again(core):

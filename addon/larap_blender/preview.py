@@ -109,7 +109,10 @@ def _tag_redraw():
 
 def show(obj):
     """Draw ``obj`` from its runtime's lattice (rt.lattice_nodes) instead of its mesh. Returns
-    False when the object cannot be hidden in the view layer (then write the mesh instead)."""
+    False when the object cannot be hidden in the view layer (then write the mesh instead).
+    Builds the per-binding data first (:func:`prepare`), here on the live/drag path: the draw
+    callback only uploads it and never reads or writes the mesh."""
+    prepare(obj)
     key = obj.larap.runtime_id
     if key in _SHOWN:
         _tag_redraw()
@@ -171,7 +174,7 @@ def forget(key):
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-binding data (numpy, then GPU buffers at the first draw)
+# Per-binding data (numpy, built by show() outside the draw callback; GPU buffers at the first draw)
 
 def _vertex_normals(co, tris):
     """Angle-weighted vertex normals (n,3) float32 of the triangles ``tris`` over ``co``."""
@@ -501,7 +504,9 @@ def draw():
                 continue
             if not _visible_here(obj, view_layer, space):
                 continue
-            g = _gpu_mesh(obj, rt)
+            g = _GPU.get(obj.larap.runtime_id)  # built by show() (prepare), never here
+            if g is None or g.deformer is not rt.deformer or g.counts != rt.counts:
+                continue
             if g.batch is None:
                 g.upload(shader)
             if g.version != rt.pose_version:

@@ -507,3 +507,25 @@ def test_handle_points_follow_the_preview_not_the_stale_key(core, gpu_preview):
     session.cancel()
     pts, owner = core.handle_points(obj, refresh=False)
     assert np.abs(pts[owner == 1] - (coords(obj, "LARAP")[right] @ mw[:3, :3].T + mw[:3, 3])).max() < 1e-6
+
+
+def test_preview_data_is_built_before_it_shows_not_in_the_draw(core, gpu_preview, monkeypatch):
+    """show() builds the per-binding data (triangles, normals) on the live/drag path; the draw
+    callback finds it built for the current engine (and never builds it)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    built = []
+    init = gpu_preview._GpuMesh.__init__
+
+    def counted(self, *a, **k):
+        built.append(1)
+        init(self, *a, **k)
+    monkeypatch.setattr(gpu_preview._GpuMesh, "__init__", counted)
+    live_move(targets, 0.5)
+    assert gpu_preview.showing(obj)
+    g = gpu_preview._GPU.get(obj.larap.runtime_id)
+    rt = core.runtime(obj)
+    assert g is not None and g.deformer is rt.deformer and g.counts == rt.counts
+    assert len(g.arrays["rest"]) == len(rest) and len(g.tris) == len(obj.data.loop_triangles)
+    live_move(targets, 0.2)
+    assert len(built) == 1  # once per binding, not per move

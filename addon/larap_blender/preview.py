@@ -24,7 +24,8 @@ visible (view-layer collections, Disable in Viewports, local view).
 :func:`blocker` says why the preview cannot show an object truthfully; the caller then writes
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
 pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
-artist). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
+artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
+smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
 it hidden as it found it.
 """
 import bpy
@@ -85,6 +86,22 @@ def blocker(obj):
     for other in keys.key_blocks:
         if other != kb and other != keys.reference_key and not other.mute and other.value != 0.0:
             return "other shape keys are mixed in (%s)" % other.name
+    return _shading_blocker(obj.data)
+
+
+def _shading_blocker(me):
+    """The preview shades a mesh all smooth (its vertex normals) or all flat: say so where Blender
+    would shade it otherwise."""
+    if getattr(me, "has_custom_normals", False):
+        return "custom normals"
+    smooth = np.empty(len(me.polygons), dtype=bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    if not smooth.any():
+        return ""
+    if not smooth.all():
+        return "mixed flat and smooth faces"
+    if getattr(me, "use_auto_smooth", False):  # Blender < 4.1: split normals at sharp edges
+        return "auto smooth"
     return ""
 
 

@@ -529,3 +529,25 @@ def test_preview_data_is_built_before_it_shows_not_in_the_draw(core, gpu_preview
     assert len(g.arrays["rest"]) == len(rest) and len(g.tris) == len(obj.data.loop_triangles)
     live_move(targets, 0.2)
     assert len(built) == 1  # once per binding, not per move
+
+
+def test_preview_falls_back_for_shading_it_does_not_draw(core, gpu_preview):
+    """The preview shades all smooth or all flat: mixed flat and smooth faces, custom normals and
+    auto smooth make posing write the mesh instead."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    me = obj.data
+    assert gpu_preview.blocker(obj) == ""
+    me.polygons[0].use_smooth = True
+    assert gpu_preview.blocker(obj) == "mixed flat and smooth faces"
+    before = key_bytes(obj)
+    live_move(targets, 0.5)
+    assert key_bytes(obj) != before and not gpu_preview.showing(obj) and not obj.hide_get()
+    for p in me.polygons:
+        p.use_smooth = True
+    assert gpu_preview.blocker(obj) == ""
+    if hasattr(me, "use_auto_smooth"):  # Blender < 4.1
+        me.use_auto_smooth = True
+        assert gpu_preview.blocker(obj) == "auto smooth"
+    me.normals_split_custom_set_from_vertices([(0.0, 0.0, 1.0)] * len(me.vertices))
+    assert me.has_custom_normals and gpu_preview.blocker(obj) == "custom normals"

@@ -208,6 +208,7 @@ class PoseSession:
         world = self.delta_matrix(translation, rotation, scale) @ self.start_matrix
         self.set_target_matrix(world)
         self.world = world
+        _evaluate_targets()  # targets parented under the dragged one (bones, Empties) follow it now
         overrides = {self.overrides_key: world}
         obj = self.obj
         if weights == "interactive" and not preview.blocker(obj):

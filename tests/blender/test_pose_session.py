@@ -121,3 +121,23 @@ def test_failed_confirm_restores_like_cancel(core, monkeypatch, gpu_preview):
         assert solving.stored_signature(obj) == sig_before
         assert not gpu_preview.showing(obj) and not obj.hide_get()
         assert not rt.needs_catchup and rt.lattice_nodes is None
+
+
+def test_targets_parented_under_the_dragged_one_follow_at_each_step(core):
+    """An Empty parented under the dragged target moves with it in the same drag step (not one
+    event behind)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    child, parent = targets
+    child.parent = parent
+    child.matrix_parent_inverse = parent.matrix_world.inverted()
+    bpy.context.view_layer.update()
+    session = core.PoseSession(obj, 1).begin()
+    tol = 0.02 * diagonal(rest)
+    for dz in (0.3, 0.6, 0.9):
+        session.update(translation=(0.0, 0.0, dz))
+        pose = coords(obj, "LARAP")
+        assert np.abs(pose[right, 2] - rest[right, 2] - dz).max() < tol
+        assert np.abs(pose[left, 2] - rest[left, 2] - dz).max() < tol
+    session.confirm()
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[:, 2] - rest[:, 2] - 0.9).max() < tol  # the whole bar moved rigidly

@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import statistics
 import time
 
 import numpy as np
 
 import larap
+import machine_info
 from larap import shapes
 
 
@@ -83,13 +83,7 @@ def main():
                 f"{r['ms_energy']:.1f} | {r['ms_start']:.1f} | {r['ms_transfer']:.1f} | {r['ms_total']:.1f} | {r['bspline_transfer']:.1f} |")
         lines.append(line)
         print(line, flush=True)
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(l.split(":", 1)[1].strip() for l in f if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    meta = (f"{datetime.date.today()} — {cpu}, {os.cpu_count()} cores, {larap.num_threads()} engine threads "
+    meta = (f"{datetime.date.today()} — {machine_info.cpu_model()}, {os.cpu_count()} cores, {larap.num_threads()} engine threads "
             f"(oneTBB), simplicial CHOLMOD, device cpu")
     print(meta)
     if args.record:

@@ -19,7 +19,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -27,7 +26,11 @@ import time
 import bpy
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+import blender_mesh  # noqa: E402
+import machine_info  # noqa: E402
 
 
 def parse_args():
@@ -67,39 +70,6 @@ def enable_addon():
     return core, engine
 
 
-def tube(name, n_target, length=4.0, radius=0.25, segments=256):
-    """Closed quad tube along X with about n_target vertices; built with foreach_set (fast)."""
-    rings = max(3, int(round(n_target / segments)))
-    xs = np.linspace(-length / 2, length / 2, rings)
-    ang = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-    co = np.empty((rings, segments, 3), np.float32)
-    co[:, :, 0] = xs[:, None]
-    co[:, :, 1] = radius * np.cos(ang)[None, :]
-    co[:, :, 2] = radius * np.sin(ang)[None, :]
-    r = np.arange(rings - 1)[:, None]
-    s = np.arange(segments)[None, :]
-    a = r * segments + s
-    b = r * segments + (s + 1) % segments
-    quads = np.stack([a, b, b + segments, a + segments], axis=-1).reshape(-1, 4)
-    caps = [np.arange(segments)[::-1], (rings - 1) * segments + np.arange(segments)]
-    loops = np.concatenate([quads.ravel()] + caps).astype(np.int32)
-    totals = np.concatenate([np.full(len(quads), 4), [segments, segments]]).astype(np.int32)
-    starts = np.concatenate([[0], np.cumsum(totals)[:-1]]).astype(np.int32)
-    me = bpy.data.meshes.new(name)
-    me.vertices.add(rings * segments)
-    me.vertices.foreach_set("co", co.ravel())
-    me.loops.add(len(loops))
-    me.loops.foreach_set("vertex_index", loops)
-    me.polygons.add(len(totals))
-    me.polygons.foreach_set("loop_start", starts)
-    me.polygons.foreach_set("loop_total", totals)
-    me.update(calc_edges=True)
-    me.validate()
-    obj = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj, co.reshape(-1, 3)
-
-
 def activate(obj):
     for o in bpy.context.selected_objects:
         o.select_set(False)
@@ -128,7 +98,7 @@ def evaluate(obj):
 
 
 def bench_larap(core, n, args):
-    obj, rest = tube("LarapTube", n)
+    obj, rest = blender_mesh.quad_tube("LarapTube", n, 256)
     activate(obj)
     left, right = groups(obj, rest)
     s = obj.larap
@@ -182,7 +152,7 @@ def bench_larap(core, n, args):
 
 
 def bench_laplacian(n, args):
-    obj, rest = tube("LapTube", n)
+    obj, rest = blender_mesh.quad_tube("LapTube", n, 256)
     activate(obj)
     left, right = groups(obj, rest)
     hook_target = bpy.data.objects.new("HookTarget", None)
@@ -218,20 +188,6 @@ def bench_laplacian(n, args):
     bpy.data.objects.remove(obj)
     bpy.data.objects.remove(hook_target)
     return res
-
-
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    load = ", load %.1f" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
-    return "%s, %d cores, %s%s" % (cpu, os.cpu_count() or 0, platform.platform(), load)
 
 
 def main():
@@ -273,7 +229,7 @@ def main():
     table = "\n".join(lines)
     print(table)
     stamp = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
-    info = dict(date=stamp, machine=machine(), blender=bpy.app.version_string, device=args.device,
+    info = dict(date=stamp, machine=machine_info.describe(), blender=bpy.app.version_string, device=args.device,
                 iterations=args.iterations, repeats=args.repeats, engine=engine.location(), rows=rows)
     if not args.no_write:
         new = not os.path.exists(args.out)

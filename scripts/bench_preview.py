@@ -18,7 +18,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -27,10 +26,15 @@ import traceback
 import bpy
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-for _p in (os.path.join(ROOT, "addon"), os.environ.get("LARAP_ENGINE_PATH") or os.path.join(ROOT, "python")):
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+for _p in (HERE, os.path.join(ROOT, "addon"), os.environ.get("LARAP_ENGINE_PATH") or os.path.join(ROOT, "python")):
     if _p not in sys.path:
         sys.path.insert(0, _p)
+
+import blender_mesh  # noqa: E402
+from blender_window import view3d  # noqa: E402
+import machine_info  # noqa: E402
 
 
 def parse_args():
@@ -46,42 +50,11 @@ def parse_args():
 ARGS = parse_args()
 
 
-def tube(name, n_target, length=4.0, radius=0.25):
-    """Closed quad tube along X with about n_target vertices (numpy + foreach_set)."""
+def tube(name, n_target):
+    """The closed quad tube (4 x 0.5 units) of about n_target vertices, rings of
+    sqrt(n_target / 4) vertices (at least 64)."""
     segments = int(max(64, round((n_target / 4.0) ** 0.5)))
-    rings = max(3, int(round(n_target / segments)))
-    xs = np.linspace(-length / 2, length / 2, rings)
-    ang = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-    co = np.empty((rings, segments, 3), np.float32)
-    co[:, :, 0] = xs[:, None]
-    co[:, :, 1] = radius * np.cos(ang)[None, :]
-    co[:, :, 2] = radius * np.sin(ang)[None, :]
-    a = np.arange(rings - 1)[:, None] * segments + np.arange(segments)[None, :]
-    b = np.arange(rings - 1)[:, None] * segments + (np.arange(segments)[None, :] + 1) % segments
-    quads = np.stack([a, b, b + segments, a + segments], axis=-1).reshape(-1, 4)
-    caps = [np.arange(segments)[::-1], (rings - 1) * segments + np.arange(segments)]
-    loops = np.concatenate([quads.ravel()] + caps).astype(np.int32)
-    totals = np.concatenate([np.full(len(quads), 4), [segments, segments]]).astype(np.int32)
-    starts = np.concatenate([[0], np.cumsum(totals)[:-1]]).astype(np.int32)
-    me = bpy.data.meshes.new(name)
-    me.vertices.add(rings * segments)
-    me.vertices.foreach_set("co", co.ravel())
-    me.loops.add(len(loops))
-    me.loops.foreach_set("vertex_index", loops)
-    me.polygons.add(len(totals))
-    me.polygons.foreach_set("loop_start", starts)
-    me.polygons.foreach_set("loop_total", totals)
-    me.polygons.foreach_set("use_smooth", np.ones(len(totals), dtype=bool))
-    me.update(calc_edges=True)
-    obj = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj, co.reshape(-1, 3)
-
-
-def view3d():
-    win = bpy.context.window_manager.windows[0]
-    area = max((a for a in win.screen.areas if a.type == "VIEW_3D"), key=lambda a: a.width * a.height)
-    return win, area, next(r for r in area.regions if r.type == "WINDOW")
+    return blender_mesh.quad_tube(name, n_target, segments, smooth=True)
 
 
 def redraw():
@@ -179,20 +152,9 @@ def bench(n):
     return row
 
 
-def machine():
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
-    load = ", load %.1f" % os.getloadavg()[0] if hasattr(os, "getloadavg") else ""
-    return "%s, %d cores, %s%s" % (cpu, os.cpu_count() or 0, platform.platform(), load)
-
-
 def report(rows):
     import gpu
-    info = {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine(),
+    info = {"date": datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine_info.describe(),
             "blender": bpy.app.version_string, "gl": "%s %s" % (gpu.platform.renderer_get(), gpu.platform.version_get()),
             "repeats": ARGS.repeats, "rows": rows}
     lines = ["", "## %s: live move in a window, GPU preview on/off (scripts/bench_preview.py)" % info["date"], "",

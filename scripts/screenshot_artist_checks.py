@@ -6,89 +6,23 @@
 #   xvfb-run -a -s "-screen 0 1600x1000x24" blender /tmp/start.blend --enable-event-simulate \
 #       --python scripts/screenshot_artist_checks.py -- OUTDIR
 # Writes OUTDIR/panel-empty.png, pose-waiting.png, pose-miss.png, overlay-after-undo.png.
-import math
 import os
 import sys
 
-import addon_utils
 import bpy
 import numpy as np
-from mathutils import Matrix, Vector
+from mathutils import Vector
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-for p in (os.path.join(ROOT, "addon"), os.path.join(ROOT, "python")):
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+for p in (HERE, os.path.join(ROOT, "addon"), os.path.join(ROOT, "python")):
     sys.path.insert(0, p)
+
+from blender_window import frame_view, override, posed_suzanne, show_larap_tab, view3d  # noqa: E402
+
 OUT = os.path.abspath(sys.argv[sys.argv.index("--") + 1]) if "--" in sys.argv else "/tmp/larap-checks"
 os.makedirs(OUT, exist_ok=True)
 STATE = {}
-
-
-def view3d():
-    win = bpy.context.window_manager.windows[0]
-    for area in win.screen.areas:
-        if area.type == "VIEW_3D":
-            region = [r for r in area.regions if r.type == "WINDOW"][0]
-            return win, area, region
-    raise RuntimeError("no 3D View")
-
-
-def override():
-    win, area, region = view3d()
-    return bpy.context.temp_override(window=win, area=area, region=region)
-
-
-def setup():
-    for ob in list(bpy.data.objects):
-        bpy.data.objects.remove(ob)
-    assert addon_utils.enable("larap_blender", default_set=True) is not None
-    bpy.ops.mesh.primitive_monkey_add()
-    obj = bpy.context.object
-    mod = obj.modifiers.new("sub", "SUBSURF")
-    mod.levels = 1
-    bpy.ops.object.modifier_apply(modifier="sub")
-    bpy.ops.object.shade_smooth()
-    co = np.empty(len(obj.data.vertices) * 3)
-    obj.data.vertices.foreach_get("co", co)
-    co = co.reshape(-1, 3)
-    z = co[:, 2]
-    for name, ids in (("Top", np.flatnonzero(z > z.max() - 0.25)), ("Chin", np.flatnonzero(z < z.min() + 0.25))):
-        g = obj.vertex_groups.new(name=name)
-        g.add(ids.tolist(), 1.0, "REPLACE")
-        with override():
-            bpy.ops.larap.handle_add(vertex_group=name)
-    bpy.context.view_layer.objects.active = obj
-    obj.larap.resolution_mode, obj.larap.cells = "CELLS", 2000
-    bpy.ops.larap.bind()
-    top = obj.larap.handles[0].target
-    top.matrix_world = (Matrix.Translation(Vector((0.35, 0.0, 0.1))) @ Matrix.Rotation(math.radians(25), 4, "Y")
-                        @ top.matrix_world)
-    bpy.ops.larap.solve()
-    obj.larap.show_overlay = True
-    return obj
-
-
-def show_larap_tab():
-    # Blender 3.4 cannot switch sidebar tabs from Python: show the LARAP panels in the "Item" tab.
-    from larap_blender import ui
-    transform = getattr(bpy.types, "VIEW3D_PT_transform", None)
-    if transform is not None:
-        bpy.utils.unregister_class(transform)
-    for cls in (ui.VIEW3D_PT_larap, ui.VIEW3D_PT_larap_settings):
-        bpy.utils.unregister_class(cls)
-        cls.bl_category = "Item"
-        bpy.utils.register_class(cls)
-
-
-def frame_view(obj):
-    from mathutils import Euler
-    win, area, region = view3d()
-    space = area.spaces.active
-    space.show_region_ui = True
-    space.shading.type = "SOLID"
-    r3d = space.region_3d
-    r3d.view_rotation = Euler((math.radians(72), 0.0, math.radians(-35))).to_quaternion()
-    r3d.view_location = obj.matrix_world.translation + Vector((0.15, 0.0, 0.0))
-    r3d.view_distance = 6.5
 
 
 def shot(name):
@@ -227,7 +161,7 @@ def run():
 
 
 def start():
-    obj = setup()
+    obj = posed_suzanne(subdivisions=1, cells=2000)
     STATE["obj"], STATE["name"] = obj, obj.name
     show_larap_tab()
     frame_view(obj)

@@ -13,8 +13,9 @@ Registration only. The add-on's rooms, each one concept (imports point down this
 * ``preview.py``: the GPU preview (the posed mesh drawn from the lattice while posing).
 * ``solving.py``: one solve, targets -> engine -> pose key (or lattice only, for the preview);
   ``catchup.py``: when the mesh data catches up with the preview; ``session.py``: dragging a handle.
-* ``handlers.py``: live mode and the app handlers; ``core.py``: bind/unbind, handles, bake, apply
-  (and the names scripts use); ``farm.py``: Load Farm Bake (a farm's PC2 cache played by Mesh Cache).
+* ``handlers.py``: live mode and the app handlers; ``bake.py``: shape keys from poses (one pose,
+  an animation) and the bake's aftermath (Remove Bake); ``core.py``: bind/unbind, back to rest,
+  handles, apply (and the names scripts use); ``farm.py``: Load Farm Bake (a farm's PC2 cache played by Mesh Cache).
 * ``props.py`` settings, ``operators.py`` and ``modal.py`` operators, ``ui.py`` panels and menus,
   ``overlay.py`` the 3D View drawing.
 """
@@ -34,13 +35,13 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
         importlib.reload(_mod)
 else:
     from . import (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
-                   catchup, session, handlers, core, operators, modal, farm, ui, overlay)
+                   catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
 _MODULES = (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
-            catchup, session, handlers, core, operators, modal, farm, ui, overlay)
+            catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)
 

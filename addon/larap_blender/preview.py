@@ -27,6 +27,13 @@ pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidd
 artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
 smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
 it hidden as it found it.
+
+Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
+contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the
+vertex shader reads, the uniform block ``_view_block`` packs is the ``LarapView`` struct the
+shaders declare, and the lighting values fill that block. About 120 of the lines are the GLSL
+itself. Read it in its banners' order: when the preview can show an object (and hiding it),
+per-binding data, the shader, lighting like Solid mode, drawing.
 """
 import bpy
 import numpy as np

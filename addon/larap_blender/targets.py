@@ -255,17 +255,9 @@ def gather(obj, rt, overrides=None):
     for h in s.handles:
         if not h.enabled:
             continue
-        label = h.vertex_group or "(no group)"
-        if h.vertex_group not in obj.vertex_groups:
-            warnings.append("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
-                            "again in the handle's settings)" % label)
-            continue
-        idx = groups.get(h.vertex_group)
-        if idx is None or len(idx) == 0:
-            warnings.append("handle %r skipped: vertex group is empty" % label)
-            continue
-        if not h.has_rest:
-            warnings.append("handle %r skipped: not bound (rebind)" % label)
+        reason = _skip_reason(obj, h, groups)
+        if reason:
+            warnings.append(reason)
             continue
         try:
             local = handle_local_transform(obj, h, overrides)
@@ -273,7 +265,8 @@ def gather(obj, rt, overrides=None):
             warnings.append("%s; skipped" % exc)
             continue
         if not np.isfinite(local).all() or singular(local[:3, :3]):
-            warnings.append("handle %r skipped: its target is scaled to zero (or flat)" % label)
+            warnings.append("handle %r skipped: its target is scaled to zero (or flat)"
+                            % (h.vertex_group or "(no group)"))
             continue
         names.append(h.vertex_group)
         weights.append(float(h.weight))
@@ -293,18 +286,30 @@ def handle_problems(obj):
     for h in obj.larap.handles:
         if not h.enabled:
             continue
-        label = h.vertex_group or "(no group)"
-        if h.vertex_group not in obj.vertex_groups:
-            problems.append("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
-                            "again in the handle's settings)" % label)
-        elif not h.has_rest:
-            problems.append("handle %r skipped: not bound (rebind)" % label)
-        else:
-            try:
-                target_matrix(h)
-            except LarapError as exc:
-                problems.append("%s; skipped" % exc)
+        reason = _skip_reason(obj, h)
+        if reason:
+            problems.append(reason)
+            continue
+        try:
+            target_matrix(h)
+        except LarapError as exc:
+            problems.append("%s; skipped" % exc)
     return problems
+
+
+def _skip_reason(obj, h, groups=None):
+    """Why a solve skips the enabled handle ``h``, read from its settings (and, given ``groups``,
+    the vertex groups' members: an empty group); "" when nothing there stops it. The one wording
+    of these warnings, for the solve (:func:`gather`) and the panel (:func:`handle_problems`)."""
+    label = h.vertex_group or "(no group)"
+    if h.vertex_group not in obj.vertex_groups:
+        return ("handle %r skipped: vertex group not found (renamed or deleted? pick the group "
+                "again in the handle's settings)" % label)
+    if groups is not None and len(groups.get(h.vertex_group, ())) == 0:
+        return "handle %r skipped: vertex group is empty" % label
+    if not h.has_rest:
+        return "handle %r skipped: not bound (rebind)" % label
+    return ""
 
 
 def target_signature(obj):

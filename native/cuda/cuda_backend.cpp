@@ -60,27 +60,46 @@ void parallel_copy(void* dst, const void* src, size_t bytes) {
 class CudaBackend final : public Backend {
  public:
   CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices) : lat_(lattice), V_(vertices) {
-    n_ = int(lattice.num_nodes());
+    n_all_ = int(lattice.num_nodes());
+    n_ = int(lattice.num_real_nodes());  // the unknowns; the stencil shell follows them
     origin_ = 0.5 * (lattice.rest.colwise().minCoeff() + lattice.rest.colwise().maxCoeff()).transpose();
-    std::vector<float4> rest(static_cast<size_t>(n_));
-    for (int i = 0; i < n_; ++i) rest[i] = to_f4(lattice.rest.row(i).transpose());
+    std::vector<float4> rest(static_cast<size_t>(n_all_));
+    for (int i = 0; i < n_all_; ++i) rest[i] = to_f4(lattice.rest.row(i).transpose());
     sys_.n = n_;
+    sys_.n_all = n_all_;
     sys_.rest = rest_.upload(rest.data(), rest.size(), stream_);
     sys_.x = x_.upload(rest.data(), rest.size(), stream_);
-    sys_.adj_off = adj_off_.upload(lattice.adj_offsets.data(), lattice.adj_offsets.size(), stream_);
-    sys_.adj = adj_.upload(lattice.adj.data(), lattice.adj.size(), stream_);
-    {  // fixed-width neighbour table (lattice edges are axis-aligned unit steps)
-      std::vector<int> nbr(size_t(6) * n_);
+    {  // neighbour table: the first neighbour in each direction in its slot, the others (split
+       // cells) in the extra list (lattice edges are axis-aligned unit steps)
+      nbr_host_.assign(size_t(6) * n_, 0);
       for (int i = 0; i < n_; ++i)
-        for (int d = 0; d < 6; ++d) nbr[size_t(d) * n_ + i] = i;
-      for (int i = 0; i < n_; ++i)
+        for (int d = 0; d < 6; ++d) nbr_host_[size_t(d) * n_ + i] = i;
+      std::vector<int> xoff(size_t(n_) + 1, 0), extra;
+      for (int i = 0; i < n_; ++i) {
         for (int k = lattice.adj_offsets[i]; k < lattice.adj_offsets[i + 1]; ++k) {
           const int j = lattice.adj[k];
+          if (j < 0 || j >= n_) throw DeviceError("lattice edge to a node that is not real");
           const int d = nbr_slot(lattice.node_coords[size_t(i)], lattice.node_coords[size_t(j)]);
           if (d < 0) throw DeviceError("lattice edge is not an axis-aligned unit step");
-          nbr[size_t(d) * n_ + i] = j;
+          int& slot = nbr_host_[size_t(d) * n_ + i];
+          if (slot == i)
+            slot = j;
+          else
+            extra.push_back(j);
         }
-      sys_.nbr = nbr_.upload(nbr.data(), nbr.size(), stream_);
+        xoff[size_t(i) + 1] = int(extra.size());
+      }
+      sys_.nbr = nbr_.upload(nbr_host_.data(), nbr_host_.size(), stream_);
+      sys_.nbx_off = nbx_off_.upload(xoff.data(), xoff.size(), stream_);
+      sys_.nbx = nbx_.upload(extra.data(), extra.size(), stream_);
+    }
+    {  // the stencil shell's weights (Lattice::fill_shell)
+      std::vector<float> w(lattice.shell_weights.size());
+      for (size_t e = 0; e < w.size(); ++e) w[e] = float(lattice.shell_weights[e]);
+      shell_off_.upload(lattice.shell_offsets.data(), lattice.shell_offsets.size(), stream_);
+      shell_ids_.upload(lattice.shell_ids.data(), lattice.shell_ids.size(), stream_);
+      shell_w_.upload(w.data(), w.size(), stream_);
+      LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // `w` may go
     }
     comp_.upload(lattice.component.data(), lattice.component.size(), stream_);
     sys_.p = p_.reserve(n_);
@@ -92,7 +111,7 @@ class CudaBackend final : public Backend {
     sys_.s[1] = s_[1].reserve(n_);
     sys_.x_tmp = xtmp_.reserve(n_);
     sys_.rot = rot_.reserve(size_t(9) * n_);
-    disp_.reserve(n_);
+    disp_.reserve(n_all_);
     sys_.iter = iter_.reserve(1);
     configure();
     LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.p, 0, sizeof(float4) * n_, stream_));
@@ -119,6 +138,7 @@ class CudaBackend final : public Backend {
     inner_ = opt_.inner > 0 ? opt_.inner : (opt_.solver == cuda::Solver::Multigrid ? 2 : 8);
     graph_.reset();
     sys_.inner = inner_;
+    sys_.exact_residual = opt_.exact_residual;
     sys_.dots = dots_.reserve(size_t(inner_ + 1) * 6);
     sys_.coef = coef_.reserve(size_t(inner_ + 2) * 8);
     sys_.counters = counters_.reserve(size_t(inner_ + 1));
@@ -164,8 +184,10 @@ class CudaBackend final : public Backend {
             adiag[size_t(i)] = v;
             continue;
           }
+          // In a slot only if j is the neighbour the slot names (split cells: a second
+          // neighbour in the same direction, or a handle coupling, goes to the remainder).
           const int d = nbr_slot(lat_.node_coords[size_t(i)], lat_.node_coords[size_t(j)]);
-          if (d >= 0 && is_edge(i, j)) {
+          if (d >= 0 && nbr_host_[size_t(d) * n + i] == j) {
             anb[size_t(d) * n + i] = v;
           } else {
             rcol.push_back(j);
@@ -286,21 +308,24 @@ class CudaBackend final : public Backend {
     sys_.zc2 = zc2_.reserve(size_t(mg.nc2));
   }
 
+  // The real rows of `nodes` (#N by 3); the shell follows them (as the CPU's fill_shell).
   void set_pose(const RowMatrixX3d& nodes) override {
+    if (nodes.rows() < n_) throw InvalidInput("set_pose: fewer rows than the lattice's real nodes");
     std::vector<float4> h(static_cast<size_t>(n_));
     for (int i = 0; i < n_; ++i) h[i] = to_f4(nodes.row(i).transpose());
     LARAP_CUDA_CHECK(
         cudaMemcpyAsync(sys_.x, h.data(), h.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
+    fill_shell();
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
   }
 
   void get_pose(RowMatrixX3d& nodes) const override {
-    std::vector<float4> h(static_cast<size_t>(n_));
+    std::vector<float4> h(static_cast<size_t>(n_all_));
     LARAP_CUDA_CHECK(
         cudaMemcpyAsync(h.data(), sys_.x, h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
-    nodes.resize(n_, 3);
-    for (int i = 0; i < n_; ++i) nodes.row(i) = from_f4(h[i]).transpose();
+    nodes.resize(n_all_, 3);
+    for (int i = 0; i < n_all_; ++i) nodes.row(i) = from_f4(h[i]).transpose();
   }
 
   // H and K of a pose. Group maps: G maps uploaded, H formed on the device from the per-node
@@ -316,6 +341,7 @@ class CudaBackend final : public Backend {
       for (int i = 0; i < n; ++i)
         h[size_t(i)] = make_float4(float(H_rows_(i, 0)), float(H_rows_(i, 1)), float(H_rows_(i, 2)), 0.f);
       LARAP_CUDA_CHECK(cudaMemcpyAsync(h_.get(), h.data(), sizeof(float4) * n, cudaMemcpyHostToDevice, stream_));
+      // H_rows_ is #N by 3 row-major: its first n rows are the real nodes' (the shell has none).
       LARAP_CUDA_CHECK(cudaMemcpyAsync(hd_.get(), H_rows_.data(), sizeof(double) * 3 * n, cudaMemcpyHostToDevice,
                                        stream_));
     } else {
@@ -397,6 +423,7 @@ class CudaBackend final : public Backend {
         cudaMemcpyAsync(motions_.get(), m.data(), sizeof(float) * m.size(), cudaMemcpyHostToDevice, stream_));
     cuda::launch_component_rigid(sys_, comp_.get(), motions_.get(), from_rest, stream_);
     LARAP_CUDA_CHECK(cudaGetLastError());
+    fill_shell();
   }
 
   void iterate(int iterations, SolveStats& stats) override {
@@ -449,6 +476,7 @@ class CudaBackend final : public Backend {
     }
     cuda::launch_rotations(sys_, false, iterations - 1, stream_);  // energy of the last pose
     LARAP_CUDA_CHECK(cudaGetLastError());
+    fill_shell();
     LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
     LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * 2 * iterations,
                                      cudaMemcpyDeviceToHost, stream_));
@@ -511,10 +539,11 @@ class CudaBackend final : public Backend {
       if (d[a] != 0) return 2 * a + (d[a] > 0 ? 1 : 0);
     return -1;
   }
-  // Is (i, j) a lattice edge? (a unit step between nodes need not be one: its cells may be gone)
-  bool is_edge(int i, int j) const {
-    const auto b = lat_.adj.begin() + lat_.adj_offsets[i], e = lat_.adj.begin() + lat_.adj_offsets[i + 1];
-    return std::binary_search(b, e, j);
+  // The stencil shell's rows of x from the real rows (after every change of the real rows).
+  void fill_shell() {
+    if (n_all_ == n_) return;
+    cuda::launch_fill_shell(sys_, shell_off_.get(), shell_ids_.get(), shell_w_.get(), stream_);
+    LARAP_CUDA_CHECK(cudaGetLastError());
   }
 
   float4 to_f4(const Eigen::Vector3d& p) const {
@@ -544,8 +573,8 @@ class CudaBackend final : public Backend {
     RowMatrixX3d pose;
     get_pose(pose);
     origin_ = o;
-    std::vector<float4> rest(static_cast<size_t>(n_));
-    for (int i = 0; i < n_; ++i) rest[size_t(i)] = to_f4(lat_.rest.row(i).transpose());
+    std::vector<float4> rest(static_cast<size_t>(n_all_));
+    for (int i = 0; i < n_all_; ++i) rest[size_t(i)] = to_f4(lat_.rest.row(i).transpose());
     rest_.upload(rest.data(), rest.size(), stream_);
     set_pose(pose);  // synchronises: `rest` may go
   }
@@ -780,7 +809,9 @@ class CudaBackend final : public Backend {
   const Lattice& lat_;
   const RowMatrixX3d& V_;
   Eigen::Vector3d origin_;
-  int n_ = 0;
+  int n_ = 0;      // real nodes: the unknowns
+  int n_all_ = 0;  // real + stencil shell nodes
+  std::vector<int> nbr_host_;  // 6 * n_: the neighbour slots (system.h)
   cuda::CudaOptions opt_;
   int inner_ = 8;      // inner solver iterations per flip-flop (opt_.inner, or automatic)
   int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
@@ -811,7 +842,8 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<float4> rc_, zc_, rc2_, zc2_;
   cuda::DeviceBuffer<int> agg2_, c_off_, c_col_;
   cuda::DeviceBuffer<float> c_val_, c_minv_;
-  cuda::DeviceBuffer<int> adj_off_, adj_, a_off_, a_col_, iter_;
+  cuda::DeviceBuffer<int> nbx_off_, nbx_, shell_off_, shell_ids_, a_off_, a_col_, iter_;
+  cuda::DeviceBuffer<float> shell_w_;
   cuda::DeviceBuffer<float> a_val_, minv_, rot_, coef_;
   cuda::DeviceBuffer<uint8_t> anch_;
   cuda::DeviceBuffer<double> dots_, energy_;

@@ -73,6 +73,7 @@ CudaOptions cuda_options_from_environment() {
     throw InvalidInput("LARAP_CUDA_MG_LEVELS must be 2 or 3 (unset: automatic)");
   o.fused = env_int("LARAP_CUDA_FUSED", 1) != 0;
   o.graph = env_int("LARAP_CUDA_GRAPH", 1) != 0;
+  o.exact_residual = env_int("LARAP_CUDA_EXACT_RESIDUAL", 1) != 0;
   o.coop_blocks = std::max(0, env_int("LARAP_CUDA_COOP_BLOCKS", 0));
   if (const char* v = env("LARAP_CUDA_PROFILE")) o.profile_path = v;
   if (const char* v = env("LARAP_CUDA_TRANSFER")) o.transfer = parse_transfer(v);

@@ -61,6 +61,10 @@ struct CudaOptions {
   double cheby_ratio = 50.0;  // cheby: lambda_max / lambda_min assumed   LARAP_CUDA_CHEBY_RATIO
   CopyBack copy = CopyBack::Overlap;  // LARAP_CUDA_COPY = overlap | staged | direct
   int copy_chunk = 1 << 16;           // vertices per chunk of overlap / staged, 1024..2^24  LARAP_CUDA_COPY_CHUNK
+  // The global step's starting residual: true = from edge differences with the handle term in
+  // double (flip_flop.cuh, residual_at); false = b - A x in float as before 2026-11-22, kept only
+  // to measure the difference (docs/cuda.md, "Precision").      LARAP_CUDA_EXACT_RESIDUAL
+  bool exact_residual = true;
 };
 
 // The options from the LARAP_CUDA_* environment variables (unset or empty: the default).

@@ -37,18 +37,24 @@ __global__ void __launch_bounds__(kBlock) rhs_kernel(System s, bool residual) {
       s.rc2[k] = f4(0, 0, 0);
   }
   if (i >= s.n) return;
-  float4 b = rhs_at(s, i);
-  if (residual) {
-    const float4* x = s.x;
-    b = b - spmv_row(s, i, [&](int j) { return x[j]; });
-  }
-  s.r[0][i] = b;
+  s.r[0][i] = residual ? residual_at(s, i) : rhs_at(s, i);
 }
 
 // ---------------------------------------------------------------- small helpers
 __global__ void displacement_kernel(System s, float4* disp) {
   const int i = blockIdx.x * blockDim.x + threadIdx.x;
-  if (i < s.n) disp[i] = s.x[i] - s.rest[i];
+  if (i < s.n_all) disp[i] = s.x[i] - s.rest[i];
+}
+
+// Shell node n + k = sum_e w_e x_{ids_e} over real nodes (Lattice::fill_shell); the weights sum
+// to one, so the centred frame changes nothing.
+__global__ void fill_shell_kernel(System s, const int* __restrict__ off, const int* __restrict__ ids,
+                                  const float* __restrict__ w) {
+  const int k = blockIdx.x * blockDim.x + threadIdx.x;
+  if (k >= s.n_all - s.n) return;
+  float4 acc = f4(0, 0, 0);
+  for (int e = __ldg(off + k); e < __ldg(off + k + 1); ++e) acc = acc + __ldg(w + e) * s.x[__ldg(ids + e)];
+  s.x[s.n + k] = acc;
 }
 
 __global__ void probe_kernel() {}
@@ -65,7 +71,11 @@ void launch_rhs(const System& s, bool residual, cudaStream_t st) {
 }
 
 void launch_displacement(const System& s, float4* disp, cudaStream_t st) {
-  if (s.n) displacement_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, disp);
+  if (s.n_all) displacement_kernel<<<blocks_for(s.n_all), kBlock, 0, st>>>(s, disp);
+}
+
+void launch_fill_shell(const System& s, const int* off, const int* ids, const float* w, cudaStream_t st) {
+  if (s.n_all > s.n) fill_shell_kernel<<<blocks_for(s.n_all - s.n), kBlock, 0, st>>>(s, off, ids, w);
 }
 
 cudaError_t probe_kernels() {

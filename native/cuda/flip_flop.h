@@ -14,12 +14,15 @@ namespace cuda {
 // flip-flop); -2 = no energy; >= 0 = into slot `slot`. Slot k is energy[2k] (ARAP + anchors)
 // and energy[2k + 1] (handle term without K). write_rot = false: energy only.
 void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st);
-// b into r[0] (residual = false) or r0 = b - A x (residual = true); zeroes the solver scalars;
-// (*iter)++.
+// b into r[0] (residual = false) or r0 = b - A x (residual = true: formed without cancellation,
+// flip_flop.cuh's residual_at); zeroes the solver scalars; (*iter)++.
 void launch_rhs(const System& s, bool residual, cudaStream_t st);
 
-// disp[i] = x_i - rest_i.
+// disp[i] = x_i - rest_i over all n_all nodes (shell included).
 void launch_displacement(const System& s, float4* disp, cudaStream_t st);
+// The stencil shell's rows of x from the real rows (Lattice::fill_shell): CSR off (#shell + 1),
+// ids (real nodes) and weights.
+void launch_fill_shell(const System& s, const int* off, const int* ids, const float* w, cudaStream_t st);
 
 // Can this build's kernels run on the current device? (no image for its architecture, ...)
 cudaError_t probe_kernels();

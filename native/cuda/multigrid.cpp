@@ -5,7 +5,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/SparseCore>
 #include <algorithm>
-#include <unordered_map>
+#include <cstdint>
 
 #include "parallel.h"
 
@@ -24,18 +24,36 @@ double jacobi_lambda_max(const SparseRows& A, const Eigen::VectorXd& diag) {
   return 1.05 * lam;
 }
 
-int aggregate(const Lattice& lattice, int shift, std::vector<int>& agg) {
-  const int n = int(lattice.num_nodes());
-  std::unordered_map<int64_t, int> ids;
-  ids.reserve(size_t(n) / 4 + 16);
-  agg.assign(size_t(n), 0);
-  for (int i = 0; i < n; ++i) {
+int aggregate(const Lattice& lattice, int n, int shift, std::vector<int>& agg) {
+  const auto key = [&](int i) {
     const Eigen::Vector3i& c = lattice.node_coords[size_t(i)];
-    const int64_t key =
-        (int64_t(c.x() >> shift) << 42) | (int64_t(c.y() >> shift) << 21) | int64_t(c.z() >> shift);
-    agg[size_t(i)] = ids.emplace(key, int(ids.size())).first->second;
+    return (int64_t(c.x() >> shift) << 42) | (int64_t(c.y() >> shift) << 21) | int64_t(c.z() >> shift);
+  };
+  // Union-find over the edges inside each block (the smaller root wins: deterministic).
+  std::vector<int> up(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) up[size_t(i)] = i;
+  const auto find = [&](int i) {
+    while (up[size_t(i)] != i) i = up[size_t(i)] = up[size_t(up[size_t(i)])];
+    return i;
+  };
+  for (int i = 0; i < n; ++i) {
+    const int64_t ki = key(i);
+    for (int k = lattice.adj_offsets[size_t(i)]; k < lattice.adj_offsets[size_t(i) + 1]; ++k) {
+      const int j = lattice.adj[size_t(k)];
+      if (j <= i || j >= n || key(j) != ki) continue;
+      const int a = find(i), b = find(j);
+      if (a != b) up[size_t(std::max(a, b))] = std::min(a, b);
+    }
   }
-  return int(ids.size());
+  agg.assign(size_t(n), 0);
+  std::vector<int> id(static_cast<size_t>(n), -1);
+  int count = 0;
+  for (int i = 0; i < n; ++i) {
+    int& r = id[size_t(find(i))];
+    if (r < 0) r = count++;
+    agg[size_t(i)] = r;
+  }
+  return count;
 }
 
 std::vector<float> dense_inverse(const Eigen::MatrixXd& A) {
@@ -62,14 +80,14 @@ std::vector<float> dense_inverse(const Eigen::MatrixXd& A) {
 
 Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double lam_max, int mg_coarse_max,
                           int mg_levels) {
-  const int n = int(lattice.num_nodes());
+  const int n = int(A.rows());  // the real nodes (the stencil shell is not in the system)
   Multigrid mg;
-  int nc = aggregate(lattice, 1, mg.agg);
+  int nc = aggregate(lattice, n, 1, mg.agg);
   mg.shift = 1;
   mg.three_levels = mg_levels == 3 || (mg_levels != 2 && nc > mg_coarse_max);
   if (!mg.three_levels) {
     for (int shift = 2; nc > mg_coarse_max && shift < 31; ++shift) {
-      nc = aggregate(lattice, shift, mg.agg);
+      nc = aggregate(lattice, n, shift, mg.agg);
       mg.shift = shift;
     }
   }
@@ -94,7 +112,7 @@ Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double la
   std::vector<int> aggf2;
   int nc2 = 0;
   for (int shift = 2; shift < 31; ++shift) {
-    nc2 = aggregate(lattice, shift, aggf2);
+    nc2 = aggregate(lattice, n, shift, aggf2);
     if (nc2 <= mg_coarse_max) break;
   }
   mg.nc2 = nc2;

@@ -24,8 +24,11 @@ using SparseRows = Eigen::SparseMatrix<double, Eigen::RowMajor, int>;
 // positive start vector (Eigen's Random, so the sequence of calls fixes it).
 double jacobi_lambda_max(const SparseRows& A, const Eigen::VectorXd& diag);
 
-// Coarse id of every node when the nodes are grouped by (coords >> shift); returns the count.
-int aggregate(const Lattice& lattice, int shift, std::vector<int>& agg);
+// Coarse id of each of the first n nodes (the real nodes: the rows of A) when they are grouped
+// by (coords >> shift) and, inside one such block, by connection through lattice edges that stay
+// in the block: copies of split cells (lattice.h) and parts that merely share a block are not
+// joined. Returns the count. A larger shift only merges groups of a smaller one (nested levels).
+int aggregate(const Lattice& lattice, int n, int shift, std::vector<int>& agg);
 
 // Dense inverse of a small SPD matrix, symmetrised, row-major float: one Cholesky factorisation,
 // then the triangular solves for blocks of 64 identity columns in parallel (parallel.h).

@@ -218,10 +218,7 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
     }
     for (int64_t k = tid; k < int64_t(s.inner) * s.nc; k += stride) s.rc[k] = f4(0, 0, 0);
     for (int64_t k = tid; k < int64_t(s.inner) * s.nc2; k += stride) s.rc2[k] = f4(0, 0, 0);
-    for (int i = tid; i < s.n; i += stride) {
-      const float4* x = s.x;
-      s.r[0][i] = rhs_at(s, i) - spmv_row(s, i, [&](int j) { return x[j]; });
-    }
+    for (int i = tid; i < s.n; i += stride) s.r[0][i] = residual_at(s, i);
     grid.sync();
     for (int k = 0; k < s.inner; ++k) {
       {

@@ -2,10 +2,12 @@
 // kernel (flip_flop.h, solvers.h). Internal to native/cuda; no public header includes CUDA.
 // Filled by the backend (cuda_backend.cpp) from its DeviceBuffers.
 //
-// Frame: every position on the device is relative to an origin (the handle system's `origin`, the
-// centroid of the rest vertices, once handles are set; the lattice centre before), so that the
-// float arithmetic of A x and the right-hand side does not lose digits to a large offset, and the
-// handle sums H, K and the moments need no change of frame.
+// Frame: every position on the device is relative to an origin (the handle system's `origin`,
+// the rest lattice's centre), so that float positions do not lose digits to a large offset, and
+// the handle sums H, K and the moments need no change of frame. The global step's starting
+// residual b - A x is formed from edge differences (x_i - x_j, c_i - x_i) and, for the handle
+// term, in double (H - M x): its error is then float rounding of edge-sized and misfit-sized
+// quantities, not of |x| (docs/cuda.md, "Precision").
 // Vectors of 3 columns (x, y, z) are float4 (w unused) so that one node is one 16-byte load.
 #pragma once
 #include <cuda_runtime.h>
@@ -16,15 +18,23 @@ namespace larap {
 namespace cuda {
 
 struct System {
-  int n = 0;                     // lattice nodes
-  const float4* rest = nullptr;  // n, rest positions (centred)
-  const int* adj_off = nullptr;  // n+1, lattice edge neighbourhood (CSR)
-  const int* adj = nullptr;
-  // Fixed-width lattice neighbours: nbr[d * n + i], d = -x,+x,-y,+y,-z,+z; a missing neighbour
-  // is i itself (contributes 0 to edge sums, and a_nb = 0 there).
+  // Nodes: the real nodes [0, n) are the unknowns; the stencil shell [n, n_all) follows them
+  // (Lattice::fill_shell, here launch_fill_shell) and has no edges, rows or rotations. Only x and
+  // rest (and the transfer's displacement) hold all n_all nodes; every other array holds n.
+  int n = 0;                     // real lattice nodes
+  int n_all = 0;                 // real + shell nodes
+  const float4* rest = nullptr;  // n_all, rest positions (centred)
+  // Lattice neighbours: the first neighbour in each direction in a fixed-width table,
+  // nbr[d * n + i], d = -x,+x,-y,+y,-z,+z (a missing neighbour is i itself: it contributes 0 to
+  // edge sums, and a_nb = 0 there); with split cells (copies of a cell, lattice.h) a node may
+  // have more than one neighbour in a direction: the others are in a short CSR, nbx_off/nbx
+  // (empty rows where nothing is split).
   const int* nbr = nullptr;
-  // A split for unrolled products: diagonal, the 6 lattice-neighbour entries (slot-major, like
-  // nbr), and the remaining entries (handle couplings between non-neighbours) as a short CSR.
+  const int* nbx_off = nullptr;  // n + 1
+  const int* nbx = nullptr;
+  // A split for unrolled products: diagonal, the 6 slot entries (slot-major, like nbr), and the
+  // remaining entries (extra neighbours of split cells, handle couplings between non-neighbours)
+  // as a short CSR.
   const float* a_diag = nullptr;
   const float* a_nb = nullptr;
   const int* rem_off = nullptr;
@@ -43,13 +53,13 @@ struct System {
   const int* m_col = nullptr;
   const double* m_val = nullptr;
   const double* q = nullptr;    // n: B^T alpha
-  const float4* h = nullptr;    // n: H of the current pose's targets, for the right-hand side
-  const double* hd = nullptr;   // 3 n: the same in double, for the energy and the moments
+  const float4* h = nullptr;    // n: H of the current pose's targets (float: the experiments' rhs)
+  const double* hd = nullptr;   // 3 n: the same in double, for the residual, energy and moments
   const uint8_t* anchored = nullptr;  // n
   float g = 0.f;                      // gamma_eff
   float a = 0.f;                      // anchor weight
   // State.
-  float4* x = nullptr;                // pose (centred)
+  float4* x = nullptr;                // pose (centred), n_all
   float4* p = nullptr;                // CG direction
   float4* r[2] = {nullptr, nullptr};  // ping-pong: residual
   float4* w[2] = {nullptr, nullptr};  // A u
@@ -63,6 +73,7 @@ struct System {
   int* iter = nullptr;           // flip-flop counter of the running solve
   double* energy = nullptr;      // 2 per flip-flop (unscaled): ARAP + anchors, c.(M c - 2 H)
   int inner = 8;                 // inner solver iterations per flip-flop
+  bool exact_residual = true;    // residual_at (true) or b - A x in float (measurement only)
   // Two-level preconditioner (solver "mg"): aggregates of fine nodes (coord >> shift), dense
   // inverse of the Galerkin coarse operator P^T A P, damped Jacobi smoothing (weight omega).
   int nc = 0;                          // coarse nodes

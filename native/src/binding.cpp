@@ -78,54 +78,50 @@ void Binding::weights_of(const Lattice& lat, int64_t v, int32_t* ids, double* w)
   }
 }
 
-Binding bind_vertices(const Lattice& lat, const RowMatrixX3d& V, WeightKind kind) {
+Binding bind_points(const Lattice& lat, const RowMatrixX3d& V, const std::vector<int32_t>& cells,
+                    WeightKind kind) {
   Binding b;
   b.kind = kind;
   const int64_t n = V.rows();
+  if (int64_t(cells.size()) != n)
+    throw InvalidInput("internal: " + std::to_string(cells.size()) + " cells for " + std::to_string(n) + " points");
+  if (kind == WeightKind::BSpline && lat.stencil27.empty())
+    throw InvalidInput("internal: this lattice has no B-spline stencils");
   b.base.resize(static_cast<size_t>(n));
   b.frac.resize(static_cast<size_t>(3 * n));
   std::atomic<bool> missing{false};
-  if (kind == WeightKind::Trilinear) {
-    parallel_for(n, [&](int64_t v) {
-      int c[3];
-      for (int a = 0; a < 3; ++a) {
-        const double local = (V(v, a) - lat.origin[a]) / lat.h;
-        const double f = std::floor(local);
-        c[a] = static_cast<int>(std::clamp(f, 0.0, double(lat.dims[a] - 1)));
-        b.frac[3 * v + a] = static_cast<float>(std::clamp(local - c[a], 0.0, 1.0));
+  parallel_for(n, [&](int64_t v) {
+    const int32_t c = cells[v];
+    if (c < 0 || c >= lat.num_cells()) {
+      missing = true;
+      return;
+    }
+    const Eigen::Vector3i& cc = lat.cell_coords[c];
+    int corner = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double f = std::clamp((V(v, a) - lat.origin[a]) / lat.h - cc[a], 0.0, 1.0);
+      if (kind == WeightKind::Trilinear) {
+        b.frac[3 * v + a] = static_cast<float>(f);
+      } else {  // offset from the nearest corner of the cell, in [-1/2, 1/2]
+        const int up = f >= 0.5 ? 1 : 0;
+        corner |= up << a;
+        b.frac[3 * v + a] = static_cast<float>(f - up);
       }
-      b.base[v] = lat.cell_at(c[0], c[1], c[2]);
-      if (b.base[v] < 0) missing = true;
-    }, 4096);
-  } else {
-    const int64_t nn = lat.num_nodes();
-    b.node27.assign(static_cast<size_t>(27 * nn), -1);
-    parallel_for(nn, [&](int64_t i) {
-      const Eigen::Vector3i& p = lat.node_coords[i];
-      int k = 0;
-      for (int z = -1; z <= 1; ++z)
-        for (int y = -1; y <= 1; ++y)
-          for (int x = -1; x <= 1; ++x, ++k) b.node27[27 * i + k] = lat.node_at(p.x() + x, p.y() + y, p.z() + z);
-    });
-    parallel_for(n, [&](int64_t v) {
-      int c[3];
-      for (int a = 0; a < 3; ++a) {
-        const double local = (V(v, a) - lat.origin[a]) / lat.h;
-        const double r = std::floor(local + 0.5);
-        c[a] = static_cast<int>(std::clamp(r, 1.0, double(lat.dims[a] - 1)));
-        b.frac[3 * v + a] = static_cast<float>(std::clamp(local - c[a], -0.5, 0.5));
-      }
-      const int32_t id = lat.node_at(c[0], c[1], c[2]);
-      b.base[v] = id;
-      bool complete = id >= 0;
-      for (int k = 0; complete && k < 27; ++k) complete = b.node27[27 * int64_t(id) + k] >= 0;
-      if (!complete) missing = true;
-    }, 4096);
-  }
+    }
+    b.base[v] = kind == WeightKind::Trilinear ? c : lat.cell_nodes[c][corner];
+  }, 4096);
   if (missing)
-    throw InvalidInput("internal: a vertex lies outside the lattice it was built for (was the "
+    throw InvalidInput("internal: a point lies outside the lattice it was built for (was the "
                        "lattice built from other vertices?)");
+  if (kind == WeightKind::BSpline) b.node27 = lat.stencil27;
   return b;
+}
+
+Binding bind_vertices(const Lattice& lat, const RowMatrixX3d& V, WeightKind kind) {
+  if (int64_t(lat.vertex_cell.size()) != V.rows())
+    throw InvalidInput("internal: the lattice was built for " + std::to_string(lat.vertex_cell.size()) +
+                       " vertices, not " + std::to_string(V.rows()));
+  return bind_points(lat, V, lat.vertex_cell, kind);
 }
 
 void transfer(const Lattice& lattice, const Binding& binding, const RowMatrixX3d& vertices,

@@ -62,15 +62,16 @@ struct CsrEdges {
 class CpuBackend final : public Backend {
  public:
   CpuBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
-      : lat_(lattice), V_(vertices), pose_(lattice.rest), R_(size_t(lattice.num_nodes())) {
-    node_energy_.resize(lattice.num_nodes());
+      : lat_(lattice), V_(vertices), nr_(lattice.num_real_nodes()), pose_(lattice.rest),
+        R_(size_t(lattice.num_real_nodes())) {
+    node_energy_.resize(size_t(nr_));
   }
 
   std::string name() const override { return "cpu"; }
 
   void set_handles(const HandleSystem& hs) override {
     hs_ = hs;
-    const int64_t n = lat_.num_nodes();
+    const int64_t n = nr_;  // the system is over the real nodes; the shell follows them
     const auto trip = arap_triplets(lat_, hs);
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
@@ -92,15 +93,18 @@ class CpuBackend final : public Backend {
     targets_set_ = true;
   }
 
-  void set_pose(const RowMatrixX3d& nodes) override { pose_ = nodes; }
+  void set_pose(const RowMatrixX3d& nodes) override {
+    pose_ = nodes;
+    lat_.fill_shell(pose_);
+  }
   void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
 
   void moments(bool rest, std::vector<ComponentMoments>& out) override {
     const RowMatrixX3d& P = rest ? lat_.rest : pose_;
-    const RowMatrixX3d Pc = P.rowwise() - hs_.origin.transpose();
+    const RowMatrixX3d Pc = P.topRows(nr_).rowwise() - hs_.origin.transpose();
     const RowMatrixX3d MP = M_ * Pc;  // M is symmetric
     out.assign(size_t(hs_.num_components), ComponentMoments{});
-    for (int64_t i = 0; i < lat_.num_nodes(); ++i) {
+    for (int64_t i = 0; i < nr_; ++i) {
       if (hs_.q[i] == 0.0) continue;
       ComponentMoments& m = out[lat_.component[i]];
       const Eigen::Vector3d p = Pc.row(i).transpose(), h = H_.row(i).transpose();
@@ -122,6 +126,7 @@ class CpuBackend final : public Backend {
       const Eigen::Vector3d x = (from_rest ? lat_.rest : pose_).row(i).transpose() - hs_.origin;
       pose_.row(i) = (mo.R * x + mo.t + hs_.origin).transpose();
     }
+    lat_.fill_shell(pose_);
   }
 
   void iterate(int iterations, SolveStats& stats) override {
@@ -146,7 +151,8 @@ class CpuBackend final : public Backend {
 
       t0 = Clock::now();
       const Eigen::MatrixX3d sol = llt_->solve(rhs_);
-      pose_ = sol;
+      pose_.topRows(nr_) = sol;
+      lat_.fill_shell(pose_);
       stats.ms_solve += ms_since(t0);
     }
     if (iterations > 0) {
@@ -181,7 +187,7 @@ class CpuBackend final : public Backend {
   // New rotations from the current pose. with_energy: first store in node_energy_ each node's
   // energy of the current pose with the rotations it had (the state after the last global step).
   void rotations(bool with_energy) {
-    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+    parallel_for(nr_, [&](int64_t i) {
       double S[9];
       const double e = node_covariance(edges_of(i), with_energy, R_[i].data(), S);
       if (with_energy) node_energy_[i] = node_energy(i, e);
@@ -199,9 +205,9 @@ class CpuBackend final : public Backend {
   double finish_energy() {
     double total = 0.0;
     for (double e : node_energy_) total += e;
-    const RowMatrixX3d Pc = pose_.rowwise() - hs_.origin.transpose();
+    const RowMatrixX3d Pc = pose_.topRows(nr_).rowwise() - hs_.origin.transpose();
     const RowMatrixX3d MP = M_ * Pc;
-    double handles = (Pc.array() * (MP - 2.0 * H_).array()).sum();
+    double handles = (Pc.array() * (MP - 2.0 * H_.topRows(nr_)).array()).sum();
     for (double k : K_) handles += k;
     return (total + std::max(handles, 0.0)) * hs_.energy_scale;
   }
@@ -209,7 +215,7 @@ class CpuBackend final : public Backend {
   void right_hand_side(const RowMatrixX3d& Btt) {
     const auto& C = lat_.rest;
     const double g = hs_.gamma_eff, a = hs_.anchor_weight;
-    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+    parallel_for(nr_, [&](int64_t i) {
       double arap[3];
       node_rhs(edges_of(i), g, R_[i].data(), arap);
       Eigen::Vector3d b = Eigen::Vector3d(arap[0], arap[1], arap[2]) + Btt.row(i).transpose();
@@ -220,7 +226,7 @@ class CpuBackend final : public Backend {
 
   // Energy of the current pose with the current rotations (scaled).
   double evaluate() {
-    parallel_for(lat_.num_nodes(), [&](int64_t i) {
+    parallel_for(nr_, [&](int64_t i) {
       double S[9];
       node_energy_[i] = node_energy(i, node_covariance(edges_of(i), true, R_[i].data(), S));
     }, 1024);
@@ -229,7 +235,8 @@ class CpuBackend final : public Backend {
 
   const Lattice& lat_;
   const RowMatrixX3d& V_;
-  RowMatrixX3d pose_;
+  const int64_t nr_;  // real nodes: the unknowns of the system
+  RowMatrixX3d pose_;  // #N by 3: real nodes, then the stencil shell (Lattice::fill_shell)
   std::vector<Rotation> R_;
   std::vector<double> node_energy_;
   HandleSystem hs_;

@@ -78,9 +78,10 @@ struct Deformer::Impl {
   std::string fallback;
   SolveStats stats;
 
-  const Binding& binding() const {
-    auto& slot = bindings[weights == WeightKind::Trilinear ? 0 : 1];
-    if (!slot) slot = std::make_unique<Binding>(bind_vertices(lattice, mesh.vertices, weights));
+  const Binding& binding() const { return binding_of(weights); }
+  const Binding& binding_of(WeightKind kind) const {
+    auto& slot = bindings[kind == WeightKind::Trilinear ? 0 : 1];
+    if (!slot) slot = std::make_unique<Binding>(bind_vertices(lattice, mesh.vertices, kind));
     return *slot;
   }
 
@@ -219,8 +220,7 @@ void Deformer::Impl::set_spec(HandleSpec next) {
 void Deformer::set_weights(WeightKind kind) {
   Impl& d = *impl_;
   if (kind == d.weights) return;
-  d.weights = kind;
-  if (d.handles_set) d.prepare_handles();
+  d.weights = kind;  // the handle rows are trilinear with either kind: nothing to re-prepare
 }
 
 void Deformer::set_gamma(double gamma) {
@@ -237,7 +237,9 @@ void Deformer::reset() {
 
 void Deformer::Impl::prepare_handles() {
   const auto t0 = Clock::now();
-  const Binding& b = binding();
+  // Handle rows are trilinear over the real cells with either weight kind, so the lattice pose
+  // does not depend on the weights (the B-spline only changes the transfer; docs/method.md).
+  const Binding& b = binding_of(WeightKind::Trilinear);
   const int s = b.stencil_size();
   const int64_t mh = static_cast<int64_t>(spec.vertices.size());
   std::vector<int32_t> ids(size_t(mh) * s);

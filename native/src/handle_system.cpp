@@ -192,7 +192,7 @@ std::vector<Eigen::Triplet<double>> arap_triplets(const Lattice& lat, const Hand
     trip.emplace_back(e[0], e[1], -g2);
     trip.emplace_back(e[1], e[0], -g2);
   }
-  for (int64_t i = 0; i < lat.num_nodes(); ++i)
+  for (int64_t i = 0; i < lat.num_real_nodes(); ++i)  // the shell is not in the system
     if (hs.anchored[i]) trip.emplace_back(int(i), int(i), hs.anchor_weight);
   return trip;
 }

@@ -42,15 +42,18 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
     if (finer->num_cells() <= 1) break;
     levels_.emplace_back();
     Level& lv = levels_.back();
-    lv.lattice = finer->coarsened();
-    // Every node of the finer level through the parent of a kept finer cell that has it as a corner.
+    std::vector<int32_t> parent_copy;
+    lv.lattice = finer->coarsened(&parent_copy);
+    // Every real node of the finer level through the coarse copy of a finer cell copy that has it
+    // as a corner (any one: copies sharing a node share the corners that interpolate it). Shell
+    // nodes of the fine level get no entry; the backend refills them from the real ones.
     const int64_t nf = finer->num_nodes();
     lv.prolong_ids.assign(size_t(nf), {});
     lv.prolong_w.assign(size_t(nf), {});
-    std::vector<uint8_t> done(size_t(nf), 0);
+    std::vector<uint8_t> done(static_cast<size_t>(nf), 0);
     for (int64_t c = 0; c < finer->num_cells(); ++c) {
       const Eigen::Vector3i parent = finer->cell_coords[c] / 2;
-      const int32_t pc = lv.lattice.cell_at(parent.x(), parent.y(), parent.z());
+      const int32_t pc = parent_copy[c];
       for (int corner = 0; corner < 8; ++corner) {
         const int32_t i = finer->cell_nodes[c][corner];
         if (done[i]) continue;
@@ -74,7 +77,9 @@ void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size, c
   for (auto& lv : levels_) {
     lv.anchored.clear();
     if (m == 0) continue;
-    const Binding hb = bind_vertices(lv.lattice, spec.rest, WeightKind::Trilinear);
+    std::vector<int32_t> cells(static_cast<size_t>(m));
+    for (int64_t j = 0; j < m; ++j) cells[j] = lv.lattice.vertex_cell[spec.vertices[j]];
+    const Binding hb = bind_points(lv.lattice, spec.rest, cells, WeightKind::Trilinear);
     std::vector<int32_t> ids(size_t(m) * 8);
     std::vector<double> w(ids.size());
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);

@@ -10,20 +10,15 @@
 #include <numeric>
 #include <string>
 
+#include "cell_pieces.h"
 #include "geometry.h"
+#include "stencil_shell.h"
 #include "parallel.h"
 
 namespace larap {
 namespace {
 
-enum CellMark : uint8_t {
-  kSurface = 1,
-  kInside = 2,
-  kVertex = 4,
-  kDilation = 8,
-  kOutside = 16,  // reached by the flood fill from the grid border (build-time only)
-};
-constexpr uint8_t kKept = kSurface | kInside | kVertex | kDilation;
+constexpr uint8_t kKept = kReal;  // dilation cells only count towards the target (no cells)
 constexpr int kPad = 2;  // empty border cells around the bounding box (dilation + flood fill)
 
 int64_t physical_memory_bytes() {
@@ -44,6 +39,7 @@ struct Grid {
   double h = 0.0;
   Eigen::Vector3i dims = Eigen::Vector3i::Zero();
   std::vector<uint8_t> marks;
+  std::vector<int64_t> vertex_cells;  // grid index of each vertex's cell
   int64_t index(int x, int y, int z) const {
     return x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z);
   }
@@ -219,12 +215,12 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
 
   mark_surface(g, mesh.vertices, tris);
   const int64_t n = mesh.num_vertices();
-  std::vector<int64_t> vertex_cells(static_cast<size_t>(n));
+  g.vertex_cells.resize(static_cast<size_t>(n));
   parallel_for(n, [&](int64_t i) {
     const Eigen::Vector3i c = g.cell_of(mesh.vertices.row(i).transpose());
-    vertex_cells[i] = g.index(c.x(), c.y(), c.z());
+    g.vertex_cells[i] = g.index(c.x(), c.y(), c.z());
   }, 8192);
-  for (int64_t id : vertex_cells) g.marks[id] |= kVertex;
+  for (int64_t id : g.vertex_cells) g.marks[id] |= kVertex;
 
   mark_outside(g);
   const std::vector<uint8_t> votes = parity_votes(g, mesh.vertices, tris);
@@ -247,9 +243,12 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
   return g;
 }
 
+// Cells that count towards the `cells` target: the real cells and the 3x3x3 blocks around the
+// vertices' cells (the B-spline's reach), as before the stencil shell stopped being cells, so a
+// given `cells` gives the same cell size as before (split copies count once).
 int64_t count_kept(const Grid& g) {
   int64_t k = 0;
-  for (uint8_t m : g.marks) k += (m & kKept) != 0;
+  for (uint8_t m : g.marks) k += (m & (kKept | kDilation)) != 0;
   return k;
 }
 
@@ -275,6 +274,277 @@ int32_t Lattice::cell_at(int x, int y, int z) const {
   return cell_grid_[x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z)];
 }
 
+// ------------------------------------------------------------------------------------ assembly
+namespace {
+
+// Disjoint sets whose root is the smallest member.
+struct DisjointSets {
+  std::vector<int32_t> parent;
+  explicit DisjointSets(int64_t n) : parent(size_t(n)) { std::iota(parent.begin(), parent.end(), 0); }
+  int32_t find(int32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  }
+  void unite(int32_t a, int32_t b) {
+    a = find(a);
+    b = find(b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+};
+
+Eigen::Vector3i corner_offset(int c) { return Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2); }
+
+}  // namespace
+
+// Builds a lattice from its cell copies (grid order, copies of a cell consecutive) and the
+// classes of their corner slots (slot 8 c + corner; a class = one node, all at one grid point).
+class LatticeAssembly {
+ public:
+  static Lattice fine(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                      const std::vector<uint8_t>& marks, const CellPieces& pieces,
+                      const std::vector<int64_t>& vertex_cells);
+  static Lattice coarse(const Lattice& finer, std::vector<int32_t>* parent);
+
+ private:
+  static Lattice start(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                       const std::vector<int64_t>& copy_cell, const std::vector<uint8_t>& kinds);
+  static void finish(Lattice& lat, DisjointSets& slots);
+  static int64_t point_index(const Lattice& lat, const Eigen::Vector3i& p) {
+    return p.x() + int64_t(lat.dims.x() + 1) * (p.y() + int64_t(lat.dims.y() + 1) * p.z());
+  }
+  // Every corner slot of the copies of cells not split joins the node its grid point already has
+  // (the plain lattice's rule).
+  static void share_points(const Lattice& lat, const std::vector<uint8_t>& plain, DisjointSets& slots) {
+    std::vector<int32_t> first(size_t(int64_t(lat.dims.x() + 1) * (lat.dims.y() + 1) * (lat.dims.z() + 1)), -1);
+    for (int64_t c = 0; c < lat.num_cells(); ++c) {
+      if (!plain[c]) continue;
+      for (int q = 0; q < 8; ++q) {
+        int32_t& f = first[size_t(point_index(lat, lat.cell_coords[c] + corner_offset(q)))];
+        if (f < 0) f = int32_t(8 * c + q);
+        else slots.unite(f, int32_t(8 * c + q));
+      }
+    }
+  }
+};
+
+Lattice LatticeAssembly::start(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                               const std::vector<int64_t>& copy_cell, const std::vector<uint8_t>& kinds) {
+  Lattice lat;
+  lat.origin = origin;
+  lat.h = h;
+  lat.dims = dims;
+  const int64_t ncell = int64_t(dims.x()) * dims.y() * dims.z();
+  lat.cell_grid_.assign(size_t(ncell), -1);
+  lat.cell_count_.assign(size_t(ncell), 0);
+  if (copy_cell.size() > size_t(std::numeric_limits<int32_t>::max() / 8))
+    throw OutOfMemory("the lattice has too many cells (" + std::to_string(copy_cell.size()) + ")");
+  lat.cell_coords.reserve(copy_cell.size());
+  for (size_t c = 0; c < copy_cell.size(); ++c) {
+    const int64_t id = copy_cell[c];
+    if (lat.cell_grid_[id] < 0) lat.cell_grid_[id] = int32_t(c);
+    ++lat.cell_count_[id];
+    lat.cell_coords.emplace_back(int(id % dims.x()), int((id / dims.x()) % dims.y()),
+                                 int(id / (int64_t(dims.x()) * dims.y())));
+  }
+  lat.cell_kind = kinds;
+  return lat;
+}
+
+void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
+  const int64_t nc = lat.num_cells();
+  // Nodes: one per class, ordered by grid point, then by the class's smallest slot.
+  std::vector<std::pair<int64_t, int32_t>> roots;
+  for (int64_t s = 0; s < 8 * nc; ++s)
+    if (slots.find(int32_t(s)) == s)
+      roots.emplace_back(point_index(lat, lat.cell_coords[s / 8] + corner_offset(int(s % 8))), int32_t(s));
+  std::sort(roots.begin(), roots.end());
+  std::vector<int32_t> node_of_slot(static_cast<size_t>(8 * nc), -1);
+  const int64_t nn = int64_t(roots.size());
+  lat.node_grid_.assign(size_t(int64_t(lat.dims.x() + 1) * (lat.dims.y() + 1) * (lat.dims.z() + 1)), -1);
+  lat.node_coords.resize(size_t(nn));
+  for (int64_t i = 0; i < nn; ++i) {
+    const int32_t s = roots[i].second;
+    node_of_slot[s] = int32_t(i);
+    lat.node_coords[i] = lat.cell_coords[s / 8] + corner_offset(s % 8);
+    if (lat.node_grid_[roots[i].first] < 0) lat.node_grid_[roots[i].first] = int32_t(i);
+  }
+  lat.real_nodes = int32_t(nn);
+  lat.rest.resize(nn, 3);
+  for (int64_t i = 0; i < nn; ++i)
+    lat.rest.row(i) = (lat.origin + lat.h * lat.node_coords[i].cast<double>()).transpose();
+  lat.cell_nodes.resize(size_t(nc));
+  for (int64_t c = 0; c < nc; ++c)
+    for (int q = 0; q < 8; ++q) lat.cell_nodes[c][q] = node_of_slot[slots.find(int32_t(8 * c + q))];
+
+  // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node.
+  std::vector<int32_t> count(size_t(nn) + 1, 0);
+  for (int64_t c = 0; c < nc; ++c)
+    for (int q = 0; q < 8; ++q)
+      for (int a = 0; a < 3; ++a)
+        if (!((q >> a) & 1)) ++count[lat.cell_nodes[c][q] + 1];
+  for (int64_t i = 0; i < nn; ++i) count[i + 1] += count[i];
+  std::vector<std::pair<int32_t, int32_t>> up(static_cast<size_t>(count[nn]));  // (axis, upper) per lower node
+  {
+    std::vector<int32_t> fill(count.begin(), count.end() - 1);
+    for (int64_t c = 0; c < nc; ++c)
+      for (int q = 0; q < 8; ++q)
+        for (int a = 0; a < 3; ++a)
+          if (!((q >> a) & 1)) up[size_t(fill[lat.cell_nodes[c][q]]++)] = {a, lat.cell_nodes[c][q | (1 << a)]};
+  }
+  std::vector<std::vector<int32_t>> nbrs(static_cast<size_t>(nn));
+  for (int64_t i = 0; i < nn; ++i) {
+    auto b = up.begin() + count[i], e = up.begin() + count[i + 1];
+    std::sort(b, e);
+    e = std::unique(b, e);
+    for (auto it = b; it != e; ++it) {
+      lat.edges.push_back({int32_t(i), it->second});
+      nbrs[i].push_back(it->second);
+      nbrs[it->second].push_back(int32_t(i));
+    }
+  }
+  lat.adj_offsets.assign(size_t(nn + 1), 0);
+  for (int64_t i = 0; i < nn; ++i) {
+    std::sort(nbrs[i].begin(), nbrs[i].end());
+    lat.adj_offsets[i + 1] = lat.adj_offsets[i] + int32_t(nbrs[i].size());
+  }
+  lat.adj.reserve(size_t(lat.adj_offsets[nn]));
+  for (int64_t i = 0; i < nn; ++i) lat.adj.insert(lat.adj.end(), nbrs[i].begin(), nbrs[i].end());
+
+  // Connected components (union-find over edges).
+  DisjointSets comp(nn);
+  for (const auto& e : lat.edges) comp.unite(e[0], e[1]);
+  lat.component.assign(size_t(nn), -1);
+  std::vector<int32_t> label(static_cast<size_t>(nn), -1);
+  lat.num_components = 0;
+  for (int64_t i = 0; i < nn; ++i) {
+    const int32_t r = comp.find(int32_t(i));
+    if (label[r] < 0) label[r] = lat.num_components++;
+    lat.component[i] = label[r];
+  }
+}
+
+Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                              const std::vector<uint8_t>& marks, const CellPieces& pieces,
+                              const std::vector<int64_t>& vertex_cells) {
+  // Copies: one per piece of an analysed cell, one for every other kept cell.
+  std::vector<int64_t> copy_cell;
+  std::vector<uint8_t> kinds, plain;
+  size_t next = 0;
+  const int64_t ncell = int64_t(marks.size());
+  for (int64_t id = 0; id < ncell; ++id) {
+    const uint8_t m = marks[id] & kKept;
+    if (!m) continue;
+    int32_t n = 1;
+    bool split = false;
+    if (next < pieces.cells.size() && pieces.cells[next] == id) {
+      n = pieces.pieces[next++];
+      split = true;
+    }
+    for (int32_t p = 0; p < n; ++p) {
+      copy_cell.push_back(id);
+      kinds.push_back(m);
+      plain.push_back(!split);
+    }
+  }
+  Lattice lat = start(origin, h, dims, copy_cell, kinds);
+  DisjointSets slots(8 * lat.num_cells());
+  share_points(lat, plain, slots);
+  for (const PieceLink& l : pieces.links) {
+    const int32_t a = lat.cell_grid_[l.a_cell] + l.a_piece;
+    const int32_t b = lat.cell_grid_[l.b_cell] + std::max(l.b_piece, 0);
+    const int axis = l.face / 2, side = l.face % 2;
+    for (int q = 0; q < 8; ++q) {
+      if (((q >> axis) & 1) != side) continue;  // corners of a's face
+      slots.unite(8 * a + q, 8 * b + (q ^ (1 << axis)));
+    }
+  }
+  finish(lat, slots);
+  lat.vertex_cell.resize(vertex_cells.size());
+  for (size_t v = 0; v < vertex_cells.size(); ++v)
+    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]] + pieces.vertex_piece[v];
+  return lat;
+}
+
+Lattice LatticeAssembly::coarse(const Lattice& f, std::vector<int32_t>* parent) {
+  const int64_t nfc = f.num_cells(), nfr = f.num_real_nodes();
+  const Eigen::Vector3i cd = (f.dims + Eigen::Vector3i::Ones()) / 2;
+  auto block = [&](int64_t c) {
+    const Eigen::Vector3i b = f.cell_coords[c] / 2;  // coordinates are non-negative
+    return b.x() + int64_t(cd.x()) * (b.y() + int64_t(cd.y()) * b.z());
+  };
+  // Fine copies incident to each real node.
+  std::vector<int32_t> off(size_t(nfr) + 1, 0), inc(size_t(8 * nfc));
+  for (int64_t c = 0; c < nfc; ++c)
+    for (int q = 0; q < 8; ++q) ++off[f.cell_nodes[c][q] + 1];
+  for (int64_t i = 0; i < nfr; ++i) off[i + 1] += off[i];
+  {
+    std::vector<int32_t> fill(off.begin(), off.end() - 1);
+    for (int64_t c = 0; c < nfc; ++c)
+      for (int q = 0; q < 8; ++q) inc[size_t(fill[f.cell_nodes[c][q]]++)] = int32_t(c);
+  }
+  // Groups: fine copies of one block joined through shared nodes.
+  DisjointSets groups(nfc);
+  for (int64_t i = 0; i < nfr; ++i)
+    for (int32_t a = off[i]; a < off[i + 1]; ++a)
+      for (int32_t b = a + 1; b < off[i + 1]; ++b)
+        if (block(inc[a]) == block(inc[b])) groups.unite(inc[a], inc[b]);
+  // Coarse copies in block order, then by their smallest fine copy.
+  std::vector<std::pair<int64_t, int32_t>> order;
+  for (int64_t c = 0; c < nfc; ++c)
+    if (groups.find(int32_t(c)) == c) order.emplace_back(block(c), int32_t(c));
+  std::sort(order.begin(), order.end());
+  std::vector<int32_t> copy_of_root(static_cast<size_t>(nfc), -1);
+  std::vector<int64_t> copy_cell;
+  std::vector<uint8_t> kinds(order.size(), 0);
+  for (size_t k = 0; k < order.size(); ++k) {
+    copy_of_root[order[k].second] = int32_t(k);
+    copy_cell.push_back(order[k].first);
+  }
+  std::vector<int32_t> up(static_cast<size_t>(nfc));
+  for (int64_t c = 0; c < nfc; ++c) {
+    up[c] = copy_of_root[groups.find(int32_t(c))];
+    kinds[up[c]] |= f.cell_kind[c];
+  }
+  Lattice lat = start(f.origin, 2.0 * f.h, cd, copy_cell, kinds);
+  // Two coarse copies whose fine copies share a node share their common corners.
+  DisjointSets slots(8 * lat.num_cells());
+  for (int64_t i = 0; i < nfr; ++i) {
+    if (off[i + 1] - off[i] < 2) continue;
+    const int32_t c1 = up[inc[off[i]]];
+    for (int32_t a = off[i] + 1; a < off[i + 1]; ++a) {
+      const int32_t c2 = up[inc[a]];
+      if (c2 == c1) continue;
+      const Eigen::Vector3i d = lat.cell_coords[c1] - lat.cell_coords[c2];
+      for (int q = 0; q < 8; ++q) {
+        const Eigen::Vector3i o = corner_offset(q) + d;  // corner q of c1 seen from c2
+        if ((o.array() < 0).any() || (o.array() > 1).any()) continue;
+        slots.unite(8 * c1 + q, 8 * c2 + (o.x() | (o.y() << 1) | (o.z() << 2)));
+      }
+    }
+  }
+  finish(lat, slots);
+  lat.vertex_cell.resize(f.vertex_cell.size());
+  for (size_t v = 0; v < f.vertex_cell.size(); ++v) lat.vertex_cell[v] = up[f.vertex_cell[v]];
+  if (parent) *parent = std::move(up);
+  return lat;
+}
+
+Lattice Lattice::coarsened(std::vector<int32_t>* parent) const { return LatticeAssembly::coarse(*this, parent); }
+
+int32_t Lattice::cell_copies(int x, int y, int z) const {
+  if (x < 0 || y < 0 || z < 0 || x >= dims.x() || y >= dims.y() || z >= dims.z()) return 0;
+  return cell_count_[x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z)];
+}
+
+void Lattice::fill_shell(RowMatrixX3d& P) const {
+  const int64_t ns = num_shell_nodes();
+  parallel_for(ns, [&](int64_t s) {
+    Eigen::RowVector3d x = Eigen::RowVector3d::Zero();
+    for (int32_t e = shell_offsets[s]; e < shell_offsets[s + 1]; ++e) x += shell_weights[e] * P.row(shell_ids[e]);
+    P.row(real_nodes + s) = x;
+  }, 2048);
+}
+
 Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (mesh.num_vertices() == 0) throw InvalidInput("the mesh has no vertices");
   if (!(options.cell_size >= 0.0) || !std::isfinite(options.cell_size))
@@ -282,6 +552,9 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
                        std::to_string(options.cell_size));
   if (options.cells < 0)
     throw InvalidInput("cells must be positive, got " + std::to_string(options.cells));
+  if (options.split_resolution < 4 || options.split_resolution > 64)
+    throw InvalidInput("split_resolution must be between 4 and 64, got " +
+                       std::to_string(options.split_resolution));
   const int64_t max_bytes = options.max_bytes > 0 ? options.max_bytes : physical_memory_bytes() / 2;
 
   const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
@@ -320,119 +593,17 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     }
   }
 
-  return from_marks(grid.origin, grid.h, grid.dims, grid.marks);
-}
-
-Lattice Lattice::from_marks(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
-                            const std::vector<uint8_t>& marks) {
-  Lattice lat;
-  lat.origin = origin;
-  lat.h = h;
-  lat.dims = dims;
-  const Eigen::Vector3i& d = dims;
-  auto cell_index = [&](int x, int y, int z) { return x + int64_t(d.x()) * (y + int64_t(d.y()) * z); };
-  lat.cell_grid_.assign(marks.size(), -1);
-  const int64_t nnode_grid = int64_t(d.x() + 1) * (d.y() + 1) * (d.z() + 1);
-  lat.node_grid_.assign(static_cast<size_t>(nnode_grid), -1);
-  auto node_index = [&](int x, int y, int z) {
-    return x + int64_t(d.x() + 1) * (y + int64_t(d.y() + 1) * z);
-  };
-
-  // Cells in grid order (deterministic), then their corners.
-  for (int z = 0; z < d.z(); ++z)
-    for (int y = 0; y < d.y(); ++y)
-      for (int x = 0; x < d.x(); ++x) {
-        const uint8_t m = marks[cell_index(x, y, z)];
-        if (!(m & kKept)) continue;
-        lat.cell_grid_[cell_index(x, y, z)] = int32_t(lat.cell_coords.size());
-        lat.cell_coords.emplace_back(x, y, z);
-        lat.cell_kind.push_back(m & kKept);
-        for (int c = 0; c < 8; ++c)
-          lat.node_grid_[node_index(x + (c & 1), y + ((c >> 1) & 1), z + (c >> 2))] = 0;
-      }
-  if (lat.cell_coords.size() > size_t(std::numeric_limits<int32_t>::max() / 8))
-    throw OutOfMemory("the lattice has too many cells (" + std::to_string(lat.cell_coords.size()) + ")");
-  for (int z = 0; z <= d.z(); ++z)
-    for (int y = 0; y <= d.y(); ++y)
-      for (int x = 0; x <= d.x(); ++x) {
-        int32_t& slot = lat.node_grid_[node_index(x, y, z)];
-        if (slot < 0) continue;
-        slot = int32_t(lat.node_coords.size());
-        lat.node_coords.emplace_back(x, y, z);
-      }
-  const int64_t nn = lat.num_nodes();
-  lat.rest.resize(nn, 3);
-  for (int64_t i = 0; i < nn; ++i)
-    lat.rest.row(i) = (lat.origin + lat.h * lat.node_coords[i].cast<double>()).transpose();
-  lat.cell_nodes.resize(lat.cell_coords.size());
-  for (size_t k = 0; k < lat.cell_coords.size(); ++k) {
-    const Eigen::Vector3i& cc = lat.cell_coords[k];
-    for (int c = 0; c < 8; ++c)
-      lat.cell_nodes[k][c] = lat.node_at(cc.x() + (c & 1), cc.y() + ((c >> 1) & 1), cc.z() + (c >> 2));
+  CellPieces pieces;
+  if (options.split_cells) {
+    pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
+                              grid.vertex_cells, options.split_resolution);
+  } else {
+    pieces.vertex_piece.assign(size_t(mesh.num_vertices()), 0);
   }
-
-  // Edges: the axis-aligned edge from node n to n + e_a exists when one of the (up to four)
-  // cells around it is kept.
-  std::vector<std::vector<int32_t>> nbrs(static_cast<size_t>(nn));
-  for (int64_t i = 0; i < nn; ++i) {
-    const Eigen::Vector3i& p = lat.node_coords[i];
-    for (int a = 0; a < 3; ++a) {
-      const int b = (a + 1) % 3, c = (a + 2) % 3;
-      Eigen::Vector3i q = p;
-      q[a] += 1;
-      const int32_t j = lat.node_at(q.x(), q.y(), q.z());
-      if (j < 0) continue;
-      bool exists = false;
-      for (int s = 0; s < 4 && !exists; ++s) {
-        Eigen::Vector3i cell = p;
-        cell[b] -= (s & 1);
-        cell[c] -= (s >> 1);
-        exists = lat.cell_at(cell.x(), cell.y(), cell.z()) >= 0;
-      }
-      if (!exists) continue;
-      lat.edges.push_back({int32_t(i), j});
-      nbrs[i].push_back(j);
-      nbrs[j].push_back(int32_t(i));
-    }
-  }
-  lat.adj_offsets.assign(static_cast<size_t>(nn + 1), 0);
-  for (int64_t i = 0; i < nn; ++i) {
-    std::sort(nbrs[i].begin(), nbrs[i].end());
-    lat.adj_offsets[i + 1] = lat.adj_offsets[i] + int32_t(nbrs[i].size());
-  }
-  lat.adj.reserve(static_cast<size_t>(lat.adj_offsets[nn]));
-  for (int64_t i = 0; i < nn; ++i) lat.adj.insert(lat.adj.end(), nbrs[i].begin(), nbrs[i].end());
-
-  // Connected components (union-find over edges).
-  std::vector<int32_t> parent(static_cast<size_t>(nn));
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&](int32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  for (const auto& e : lat.edges) {
-    const int32_t a = find(e[0]), b = find(e[1]);
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
-  }
-  lat.component.assign(static_cast<size_t>(nn), -1);
-  std::vector<int32_t> label(static_cast<size_t>(nn), -1);
-  for (int64_t i = 0; i < nn; ++i) {
-    const int32_t r = find(int32_t(i));
-    if (label[r] < 0) label[r] = lat.num_components++;
-    lat.component[i] = label[r];
-  }
+  Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
+  build_stencil_shell(lat);
   return lat;
 }
 
-Lattice Lattice::coarsened() const {
-  // Each kept cell marks its parent (x>>1, y>>1, z>>1); the parent keeps the union of the kinds.
-  const Eigen::Vector3i cd = (dims + Eigen::Vector3i::Ones()) / 2;
-  std::vector<uint8_t> marks(size_t(int64_t(cd.x()) * cd.y() * cd.z()), 0);
-  for (size_t k = 0; k < cell_coords.size(); ++k) {
-    const Eigen::Vector3i c = cell_coords[k] / 2;  // coordinates are non-negative
-    marks[c.x() + int64_t(cd.x()) * (c.y() + int64_t(cd.y()) * c.z())] |= cell_kind[k];
-  }
-  return from_marks(origin, 2.0 * h, cd, marks);
-}
 
 }  // namespace larap

@@ -36,13 +36,18 @@ def _add_solver_args(p):
     p.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto")
     p.add_argument("--levels", type=int, default=1,
                    help="lattice levels solved coarse to fine (default 1: the fine lattice alone)")
+    p.add_argument("--no-split-cells", dest="split_cells", action="store_false",
+                   help="keep the plain lattice: do not keep a cell once per connected piece inside it")
+    p.add_argument("--split-resolution", type=int, default=24,
+                   help="voxels per cell edge that decide the pieces of a cell (default 24)")
 
 
 def _deform(V, F, groups, args, out_path, template=None):
     idx, targets = flatten(groups)
     t0 = time.perf_counter()
     d = Deformer(V, F, cells=args.cells, cell_size=args.cell_size, weights=args.weights,
-                 gamma=args.gamma, device=args.device, levels=args.levels)
+                 gamma=args.gamma, device=args.device, levels=args.levels,
+                 split_cells=args.split_cells, split_resolution=args.split_resolution)
     # Each group of the file is a handle group; one transform per group when every group has
     # one, else the same targets vertex by vertex.
     d.set_handle_groups([g.vertices for g in groups], weights=[g.weight for g in groups])

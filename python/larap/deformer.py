@@ -70,6 +70,12 @@ def _positive_float(name: str, value) -> float:
     return value
 
 
+def _boolean(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def _integer(name: str, value) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an integer, got {value!r}")
@@ -114,11 +120,18 @@ class Deformer:
     device: "cpu", "cuda" or "auto" (CUDA when a usable GPU exists, else the CPU; see .device).
     levels: lattice levels solved coarse to fine, each joining 2x2x2 cells of the one below (the
         paper's hierarchy; coarser levels run on the CPU). 1 = the fine lattice alone. More levels
-        carry large moves across big lattices in fewer iterations.
+        carry large moves across big lattices in fewer iterations. Coarse levels keep the pieces
+        apart that the fine level keeps apart (one coarse copy per connected group).
+    split_cells: keep a cell once per connected piece of the solid inside it (default True), so
+        parts closer than a cell (fingers, tines) do not share lattice nodes; False keeps the
+        plain lattice, where everything in one cell moves together.
+    split_resolution: voxels per cell edge used to find the pieces (default 24, 4..64): two
+        surfaces farther apart than 2 / split_resolution of a cell always separate.
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
-                 weights="trilinear", gamma=0.1, device="cpu", max_bytes=None, levels=1):
+                 weights="trilinear", gamma=0.1, device="cpu", max_bytes=None, levels=1,
+                 split_cells=True, split_resolution=24):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
@@ -130,7 +143,9 @@ class Deformer:
         limit = 0 if max_bytes is None else _positive_int("max_bytes", max_bytes)
         self._n = V.shape[0]
         self._core = _core.Deformer(V, offsets, indices, n_cells, size, str(weights), _real("gamma", gamma),
-                                    str(device), limit, _integer("levels", levels))
+                                    str(device), limit, _integer("levels", levels),
+                                    _boolean("split_cells", split_cells),
+                                    _integer("split_resolution", split_resolution))
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()

@@ -27,6 +27,7 @@ for p in (os.path.join(ROOT, "scripts"), os.path.join(ROOT, "addon"), os.path.jo
     if p not in sys.path:
         sys.path.insert(0, p)
 
+from blender_mesh import mesh_object  # noqa: E402
 from report.blender_peers_geometry import bar  # noqa: E402
 
 
@@ -49,18 +50,7 @@ def positions(me):
 def make_mesh(name, V, F):
     import larap
     offsets, indices = larap.faces_to_csr(F, len(V))
-    me = bpy.data.meshes.new(name)
-    me.vertices.add(len(V))
-    me.vertices.foreach_set("co", V.astype(np.float32).ravel())
-    me.loops.add(len(indices))
-    me.loops.foreach_set("vertex_index", indices.astype(np.int32))
-    me.polygons.add(len(offsets) - 1)
-    me.polygons.foreach_set("loop_start", offsets[:-1].astype(np.int32))
-    me.polygons.foreach_set("loop_total", np.diff(offsets).astype(np.int32))
-    me.update(calc_edges=True)
-    obj = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
+    return mesh_object(name, V, offsets, indices)
 
 
 def add_groups(obj, groups, names=("Base", "Tip")):
@@ -80,6 +70,26 @@ def matrix(T):
     return Matrix(np.asarray(T).tolist())
 
 
+def bind_and_move(obj, bind_op, modifier, target, steps):
+    """A Blender deformer's bind and moves, timed as the viewport sees them: ``bind_op`` (the
+    modifier's bind operator) on ``obj``'s ``modifier`` with the mesh re-evaluated, then the tip
+    transform of each step given to ``target`` (the Empty a Hook follows) and the mesh re-evaluated.
+    Returns (bind ms, median ms per move, the last pose's #V by 3 positions)."""
+    evaluate(obj)
+    t0 = time.perf_counter()
+    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
+        bind_op(modifier=modifier.name)
+    evaluate(obj)
+    bind_ms = ms(t0)
+    moves = []
+    for T in steps:
+        target.matrix_world = matrix(T[1])
+        t0 = time.perf_counter()
+        me = evaluate(obj)
+        moves.append(ms(t0))
+    return bind_ms, float(np.median(moves)), positions(me)
+
+
 def laplacian(V, F, groups, steps):
     obj = make_mesh("Bar", V, F)
     add_groups(obj, groups)
@@ -88,22 +98,11 @@ def laplacian(V, F, groups, steps):
     hook.object, hook.vertex_group = target, "Tip"
     lap = obj.modifiers.new("Laplacian", "LAPLACIANDEFORM")
     lap.vertex_group, lap.iterations = "Anchors", 1
-    evaluate(obj)
-    t0 = time.perf_counter()
-    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
-        bpy.ops.object.laplaciandeform_bind(modifier=lap.name)
-    evaluate(obj)
-    res = dict(bind_ms=ms(t0), is_bind=bool(lap.is_bind))
-    moves = []
-    for T in steps:
-        target.matrix_world = matrix(T[1])
-        t0 = time.perf_counter()
-        me = evaluate(obj)
-        moves.append(ms(t0))
-    X = positions(me)
+    bind_ms, move_ms, X = bind_and_move(obj, bpy.ops.object.laplaciandeform_bind, lap, target, steps)
+    res = dict(bind_ms=bind_ms, is_bind=bool(lap.is_bind))
     mid = np.flatnonzero(np.abs(V[:, 0] - 2.0) < 0.1)
     moved = float(np.abs(X[mid] - V[mid]).max())
-    res.update(move_ms=float(np.median(moves)), ok=bool(lap.is_bind and moved > 1e-3))
+    res.update(move_ms=move_ms, ok=bool(lap.is_bind and moved > 1e-3))
     if not res["ok"]:
         res["error"] = "not bound" if not lap.is_bind else "no deformation (the modifier passed the mesh through)"
     return res, X
@@ -122,20 +121,9 @@ def meshdeform(V, F, groups, steps):
     hook.object, hook.vertex_group = target, "Tip"
     md = obj.modifiers.new("MeshDeform", "MESH_DEFORM")
     md.object, md.precision = cage, 4
-    evaluate(obj)
-    t0 = time.perf_counter()
-    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
-        bpy.ops.object.meshdeform_bind(modifier=md.name)
-    evaluate(obj)
-    res = dict(bind_ms=ms(t0), is_bind=bool(md.is_bound), cage_vertices=len(cV))
-    moves = []
-    for T in steps:
-        target.matrix_world = matrix(T[1])
-        t0 = time.perf_counter()
-        me = evaluate(obj)
-        moves.append(ms(t0))
-    X = positions(me)
-    res.update(move_ms=float(np.median(moves)), ok=bool(md.is_bound))
+    bind_ms, move_ms, X = bind_and_move(obj, bpy.ops.object.meshdeform_bind, md, target, steps)
+    res = dict(bind_ms=bind_ms, is_bind=bool(md.is_bound), cage_vertices=len(cV), move_ms=move_ms,
+               ok=bool(md.is_bound))
     return res, X
 
 

@@ -9,6 +9,7 @@ indices (the faces), "pose": NPZ with X or null, "offset": [x, y, z], "color": [
 "size": [w, h], "focus": [[xmin, ymin, zmin], [xmax, ymax, zmax]] (optional: frame this box)}.
 A picture that fails is reported on stdout and skipped; the others still render."""
 import json
+import os
 import sys
 import traceback
 
@@ -16,23 +17,15 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # scripts/
+from blender_mesh import mesh_object  # noqa: E402
 
-def mesh_object(name, X, offsets, indices, color):
-    me = bpy.data.meshes.new(name)
-    me.vertices.add(len(X))
-    me.vertices.foreach_set("co", X.astype(np.float32).ravel())
-    me.loops.add(len(indices))
-    me.loops.foreach_set("vertex_index", indices.astype(np.int32))
-    me.polygons.add(len(offsets) - 1)
-    me.polygons.foreach_set("loop_start", offsets[:-1].astype(np.int32))
-    me.polygons.foreach_set("loop_total", np.diff(offsets).astype(np.int32))
-    me.update(calc_edges=True)
-    me.polygons.foreach_set("use_smooth", np.ones(len(offsets) - 1, bool))
+
+def colored_mesh(name, X, offsets, indices, color):
+    ob = mesh_object(name, X, offsets, indices, smooth=True)
     mat = bpy.data.materials.new(name)
     mat.diffuse_color = (*color, 1.0)
-    me.materials.append(mat)
-    ob = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(ob)
+    ob.data.materials.append(mat)
     return ob
 
 
@@ -49,7 +42,7 @@ def render(spec):
             R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
             X = X @ R.T
         X = X + np.asarray(o.get("offset", (0, 0, 0)), float)
-        mesh_object("obj%d" % k, X, rest["offsets"], rest["indices"], o.get("color", (0.8, 0.8, 0.8)))
+        colored_mesh("obj%d" % k, X, rest["offsets"], rest["indices"], o.get("color", (0.8, 0.8, 0.8)))
         lo, hi = np.minimum(lo, X.min(0)), np.maximum(hi, X.max(0))
     if spec.get("focus"):
         lo, hi = np.asarray(spec["focus"][0], float), np.asarray(spec["focus"][1], float)

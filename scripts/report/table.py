@@ -6,6 +6,8 @@ import datetime
 import os
 import platform
 
+import machine_info
+
 
 def write_csv(path, rows):
     keys = []
@@ -33,13 +35,7 @@ def num(x, default=float("nan")):
 
 
 def machine() -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(l.split(":", 1)[1].strip() for l in f if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return dict(cpu=cpu, cores=os.cpu_count(), load=round(os.getloadavg()[0], 2),
+    return dict(cpu=machine_info.cpu_model(), cores=os.cpu_count(), load=round(os.getloadavg()[0], 2),
                 date=datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), python=platform.python_version())
 
 

@@ -16,12 +16,14 @@ const char* weight_kind_name(WeightKind kind);
 
 struct Binding {
   WeightKind kind = WeightKind::Trilinear;
-  // Per vertex: trilinear -> the id of its kept cell; bspline -> the id of its nearest node.
+  // Per vertex: trilinear -> the id of its cell copy; bspline -> the id of its nearest node (a
+  // corner of its cell copy), whose row of node27 is the vertex's stencil.
   std::vector<int32_t> base;
   // Per vertex (#V by 3, row-major): trilinear -> position in the cell in [0,1]^3;
   // bspline -> offset from the nearest node in [-1/2,1/2]^3 (in cells).
   std::vector<float> frac;
-  // bspline only: #N by 27 ids of node (x+dx, y+dy, z+dz), d in {-1,0,1}, dx fastest; -1 if absent.
+  // bspline only: #real nodes by 27 ids of the node of the same piece at (x+dx, y+dy, z+dz),
+  // d in {-1,0,1}, dx fastest: a real node or a stencil-shell node (Lattice::stencil27).
   std::vector<int32_t> node27;
 
   int stencil_size() const { return kind == WeightKind::Trilinear ? 8 : 27; }
@@ -30,8 +32,12 @@ struct Binding {
   void weights_of(const Lattice& lattice, int64_t v, int32_t* ids, double* w) const;
 };
 
-// Binds `vertices` (#V by 3, the mesh the lattice was built for) with the given weights.
+// Binds `vertices` (#V by 3, the mesh the lattice was built for) with the given weights; each
+// vertex binds to the cell copy of its own piece (Lattice::vertex_cell).
 Binding bind_vertices(const Lattice& lattice, const RowMatrixX3d& vertices, WeightKind kind);
+// Binds points given the cell copy of each (#P by 3 positions, #P cell ids).
+Binding bind_points(const Lattice& lattice, const RowMatrixX3d& points, const std::vector<int32_t>& cells,
+                    WeightKind kind);
 
 // out = vertices + W * displacement, where displacement is #N by 3 (deformed - rest lattice).
 // out is #V by 3 row-major; parallel over vertices, deterministic.

@@ -2,9 +2,19 @@
 //
 // Kept cells are (1) every cell a triangle of the mesh overlaps (exact separating-axis
 // triangle/box test, so large triangles and thin parts are never missed), (2) every cell that
-// contains a vertex (loose vertices and point clouds bind too), (3) every cell inside the solid,
-// and (4) the 3x3x3 block of cells around each vertex's cell, so that every quadratic B-spline
-// stencil is complete. Cells entirely outside are deleted.
+// contains a vertex (loose vertices and point clouds bind too) and (3) every cell inside the
+// solid. Cells entirely outside are deleted.
+//
+// Cell splitting (virtual node algorithm, docs/method.md): a kept cell that holds more than one
+// connected piece of the solid is kept once per piece (a "copy"); copies of face-adjacent cells
+// share the nodes of the shared face only where their pieces connect across it (cell_pieces.h).
+// So cell_coords and node_coords may repeat. Where nothing is split the lattice is the plain one.
+//
+// Stencil shell: the quadratic B-spline reads the 27 nodes around a vertex's nearest node. Where
+// the lattice has no node of the vertex's piece there, a shell node stands in (nodes
+// [num_real_nodes(), num_nodes())): it has no edges, takes no part in the energy, and its position
+// is a fixed linear extrapolation of real nodes of its own piece (shell_* below), so the pose of
+// the real nodes does not depend on the weight kind. See stencil_shell.h.
 //
 // "Inside" is the union of two tests that fail in different ways, so that real meshes (open,
 // soups, inconsistently oriented, non-manifold) work:
@@ -34,6 +44,11 @@ struct LatticeOptions {
   // Refuse (OutOfMemory) a grid whose estimated memory exceeds this many bytes; 0 = derived from
   // the machine's physical memory (half of it).
   int64_t max_bytes = 0;
+  // Cell splitting (on by default): each cell is kept once per connected piece of the solid in
+  // it, decided on a split_resolution^3 voxel grid inside the cells that may hold several pieces.
+  // Two surfaces farther apart than 2 h / split_resolution always separate (docs/method.md).
+  bool split_cells = true;
+  int split_resolution = 24;  // in [4, 64]
 };
 
 // Default target cell count when neither cells nor cell_size is given.
@@ -51,39 +66,66 @@ class Lattice {
   Eigen::Vector3i dims;    // number of grid cells per axis (nodes: dims + 1)
 
   // ------------------------------------------------------------------ cells
-  std::vector<Eigen::Vector3i> cell_coords;   // #C integer coordinates of kept cells
+  // Copies of one grid cell are consecutive, in grid order (x fastest).
+  std::vector<Eigen::Vector3i> cell_coords;   // #C integer coordinates of kept cells (may repeat)
   std::vector<std::array<int32_t, 8>> cell_nodes;  // #C corner node ids, corner c = (c&1, c>>1&1, c>>2)
-  std::vector<uint8_t> cell_kind;             // #C bit 1 surface, 2 inside, 4 vertex, 8 dilation
+  std::vector<uint8_t> cell_kind;             // #C bit 1 surface, 2 inside, 4 vertex
 
   // ------------------------------------------------------------------ nodes
-  std::vector<Eigen::Vector3i> node_coords;   // #N integer coordinates
+  // Real nodes first (corners of kept cells, in grid order, copies at one point consecutive), then
+  // the shell nodes.
+  std::vector<Eigen::Vector3i> node_coords;   // #N integer coordinates (may repeat)
   RowMatrixX3d rest;                          // #N by 3 rest positions (origin + h * coords)
   std::vector<int32_t> adj_offsets;           // #N+1 CSR offsets of the edge neighbourhood
   std::vector<int32_t> adj;                   // neighbour node ids, sorted per node
-  std::vector<std::array<int32_t, 2>> edges;  // #E undirected edges (i < j)
+  std::vector<std::array<int32_t, 2>> edges;  // #E undirected edges (i < j), real nodes only
   std::vector<int32_t> component;             // #N connected component id of each node
   int32_t num_components = 0;
+  int32_t real_nodes = 0;                     // nodes [0, real_nodes) are real
+
+  // ------------------------------------------------------------------ binding support
+  std::vector<int32_t> vertex_cell;           // #V the cell copy holding each mesh vertex's piece
+  // Stencil shell (fine level only): shell node s = real_nodes + k sits at
+  //   x_s = sum_{e in [shell_offsets[k], shell_offsets[k+1])} shell_weights[e] x_{shell_ids[e]}
+  // over real nodes (weights sum to one; affine maps are reproduced exactly).
+  std::vector<int32_t> shell_offsets;         // #shell + 1
+  std::vector<int32_t> shell_ids;
+  std::vector<double> shell_weights;
+  // B-spline stencils: per real node, the 27 nodes (real or shell) of its piece at
+  // (x+dx, y+dy, z+dz), d in {-1,0,1}, dx fastest. Empty when the lattice has no shell.
+  std::vector<int32_t> stencil27;
 
   int64_t num_cells() const { return static_cast<int64_t>(cell_coords.size()); }
   int64_t num_nodes() const { return static_cast<int64_t>(node_coords.size()); }
+  int64_t num_real_nodes() const { return real_nodes; }
+  int64_t num_shell_nodes() const { return num_nodes() - real_nodes; }
 
-  // Node id at integer grid coordinates, or -1 if no kept cell has that corner.
+  // The lowest node id at integer grid coordinates, or -1 if no kept cell has that corner. With
+  // split cells a point may hold several nodes: use cell_nodes of the right copy instead.
   int32_t node_at(int x, int y, int z) const;
-  // Kept cell id at integer grid coordinates, or -1.
+  // The first copy of the kept cell at integer grid coordinates, or -1; its copies are
+  // [cell_at, cell_at + cell_copies).
   int32_t cell_at(int x, int y, int z) const;
+  int32_t cell_copies(int x, int y, int z) const;
+
+  // Positions of the shell nodes from those of the real nodes (rows [real_nodes, #N) of P).
+  void fill_shell(RowMatrixX3d& P) const;
 
   // The next coarser level: cells are 2x2x2 blocks of this lattice's cells (same origin, twice
-  // the cell size); a block is kept when any of its cells is.
-  Lattice coarsened() const;
+  // the cell size). A block holds one copy per group of its fine copies connected through shared
+  // nodes; two coarse copies share a corner when some of their fine copies share a node. No
+  // shell. vertex_cell maps each vertex to the coarse copy of its fine copy; parent (if given)
+  // receives the coarse copy of every fine cell copy.
+  Lattice coarsened(std::vector<int32_t>* parent = nullptr) const;
 
   // Bytes a grid of these dimensions needs while building (dense index grids + marks).
   static int64_t estimate_bytes(const Eigen::Vector3i& dims);
 
  private:
-  static Lattice from_marks(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
-                            const std::vector<uint8_t>& marks);
-  std::vector<int32_t> node_grid_;  // (dims+1)^3 dense map to node ids
-  std::vector<int32_t> cell_grid_;  // dims^3 dense map to cell ids
+  friend class LatticeAssembly;
+  std::vector<int32_t> node_grid_;  // (dims+1)^3 dense map to the lowest node id at each point
+  std::vector<int32_t> cell_grid_;  // dims^3 dense map to the first copy of each cell
+  std::vector<int32_t> cell_count_; // dims^3 number of copies of each cell
 };
 
 }  // namespace larap

@@ -1,0 +1,455 @@
+#include "cell_pieces.h"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include "geometry.h"
+#include "parallel.h"
+
+namespace larap {
+namespace {
+
+struct GridIndex {
+  Eigen::Vector3i d;
+  int64_t index(int x, int y, int z) const { return x + int64_t(d.x()) * (y + int64_t(d.y()) * z); }
+  int64_t index(const Eigen::Vector3i& c) const { return index(c.x(), c.y(), c.z()); }
+  Eigen::Vector3i coords(int64_t id) const {
+    return Eigen::Vector3i(int(id % d.x()), int((id / d.x()) % d.y()), int(id / (int64_t(d.x()) * d.y())));
+  }
+  bool contains(const Eigen::Vector3i& c) const {
+    return (c.array() >= 0).all() && (c.array() < d.array()).all();
+  }
+};
+
+// Bit of the neighbour at offset o in {-1,0,1}^3 (o != 0) in a 27-bit mask.
+inline int offset_bit(const Eigen::Vector3i& o) { return (o.x() + 1) + 3 * (o.y() + 1) + 9 * (o.z() + 1); }
+
+// Union-find over vertex ids, reset per cell by an epoch stamp (one per worker thread).
+struct LocalUnionFind {
+  std::vector<int32_t> parent;
+  std::vector<uint32_t> stamp;
+  uint32_t epoch = 0;
+  void begin(size_t n) {
+    if (parent.size() < n) {
+      parent.assign(n, 0);
+      stamp.assign(n, 0);
+      epoch = 0;
+    }
+    if (++epoch == 0) {
+      std::fill(stamp.begin(), stamp.end(), 0u);
+      epoch = 1;
+    }
+  }
+  int32_t find(int32_t v) {
+    if (stamp[v] != epoch) {
+      stamp[v] = epoch;
+      parent[v] = v;
+      return v;
+    }
+    while (parent[v] != v) v = parent[v] = parent[parent[v]];
+    return v;
+  }
+  void unite(int32_t a, int32_t b) {
+    a = find(a);
+    b = find(b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+};
+
+int local_components(const int32_t* tri_ids, int32_t n, const std::vector<Eigen::Vector3i>& tris,
+                     int64_t num_vertices) {
+  if (n <= 1) return n;
+  thread_local LocalUnionFind uf;
+  uf.begin(size_t(num_vertices));
+  for (int32_t k = 0; k < n; ++k) {
+    const Eigen::Vector3i& t = tris[tri_ids[k]];
+    uf.unite(t[0], t[1]);
+    uf.unite(t[0], t[2]);
+  }
+  const int32_t r0 = uf.find(tris[tri_ids[0]][0]);
+  for (int32_t k = 1; k < n; ++k)
+    if (uf.find(tris[tri_ids[k]][0]) != r0) return 2;  // more than one is all that matters
+  return 1;
+}
+
+// Small union-find over up to 8 entries.
+struct TinyUnionFind {
+  int p[8];
+  explicit TinyUnionFind(int n) { std::iota(p, p + n, 0); }
+  int find(int x) {
+    while (p[x] != x) x = p[x] = p[p[x]];
+    return x;
+  }
+  void unite(int a, int b) { p[find(a)] = find(b); }
+};
+
+}  // namespace
+
+CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                            const std::vector<uint8_t>& marks, const RowMatrixX3d& V,
+                            const std::vector<Eigen::Vector3i>& tris,
+                            const std::vector<int64_t>& vertex_cells, int k) {
+  CellPieces out;
+  const GridIndex g{dims};
+  const int64_t ncell = int64_t(marks.size());
+  const int64_t nt = int64_t(tris.size());
+  out.vertex_piece.assign(size_t(V.rows()), 0);
+
+  // ---------------------------------------------------------------- surface cells and their triangles
+  std::vector<int32_t> surf_of(static_cast<size_t>(ncell), -1);
+  std::vector<int64_t> surf_cells;
+  for (int64_t id = 0; id < ncell; ++id)
+    if (marks[id] & kSurface) {
+      surf_of[id] = int32_t(surf_cells.size());
+      surf_cells.push_back(id);
+    }
+  const int64_t ns = int64_t(surf_cells.size());
+  if (ns == 0) return out;
+
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
+  auto cell_range = [&](int64_t t, Eigen::Vector3i& c0, Eigen::Vector3i& c1) {
+    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
+    const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+    for (int q = 0; q < 3; ++q) {
+      c0[q] = std::max(0, int(std::floor((lo[q] - origin[q]) / h - 1e-7)));
+      c1[q] = std::min(dims[q] - 1, int(std::floor((hi[q] - origin[q]) / h + 1e-7)));
+    }
+  };
+  // Visits the surface cells triangle t overlaps (the lattice builder's exact test).
+  auto for_cells = [&](int64_t t, auto&& visit) {
+    Eigen::Vector3i c0, c1;
+    cell_range(t, c0, c1);
+    if (c0 == c1) {
+      const int32_t s = surf_of[g.index(c0)];
+      if (s >= 0) visit(s, c0);
+      return;
+    }
+    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
+    for (int z = c0.z(); z <= c1.z(); ++z)
+      for (int y = c0.y(); y <= c1.y(); ++y)
+        for (int x = c0.x(); x <= c1.x(); ++x) {
+          const int32_t s = surf_of[g.index(x, y, z)];
+          if (s < 0) continue;
+          const Eigen::Vector3d centre = origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
+          if (geometry::triangle_box_overlap(centre, half, a, b, c)) visit(s, Eigen::Vector3i(x, y, z));
+        }
+  };
+  // Pass 1 (parallel): a triangle inside one cell's range overlaps that cell (most triangles of
+  // a fine mesh); the others are tested cell by cell, and mark the neighbour masks.
+  std::vector<int32_t> tri_cell(static_cast<size_t>(nt), -1);  // -2: several cells
+  std::vector<std::atomic<uint32_t>> shares(static_cast<size_t>(ns));  // 27-bit masks: shares a triangle with
+  for (auto& m : shares) m.store(0, std::memory_order_relaxed);
+  parallel_for(nt, [&](int64_t t) {
+    Eigen::Vector3i c0, c1;
+    cell_range(t, c0, c1);
+    if (c0 == c1) {
+      tri_cell[t] = surf_of[g.index(c0)];
+      return;
+    }
+    tri_cell[t] = -2;
+    std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
+    int nseen = 0;
+    // A triangle over more than 8 cells links its first 8 (its other cells see it through
+    // their own overlaps with their neighbours).
+    for_cells(t, [&](int32_t sc, const Eigen::Vector3i& c) {
+      if (nseen < 8) seen[nseen++] = {sc, c};
+    });
+    for (int i = 0; i < nseen; ++i)
+      for (int j = 0; j < nseen; ++j) {
+        if (i == j) continue;
+        const Eigen::Vector3i o = seen[j].second - seen[i].second;
+        if (o.cwiseAbs().maxCoeff() > 1) continue;
+        shares[seen[i].first].fetch_or(1u << offset_bit(o), std::memory_order_relaxed);
+      }
+  }, 4096);
+  // Pass 2 (serial): the cells of the triangles over several cells, then counts and lists.
+  std::vector<int32_t> multi_off{0}, multi_cells;
+  for (int64_t t = 0; t < nt; ++t) {
+    if (tri_cell[t] != -2) continue;
+    for_cells(t, [&](int32_t sc, const Eigen::Vector3i&) { multi_cells.push_back(sc); });
+    multi_off.push_back(int32_t(multi_cells.size()));
+  }
+  std::vector<int32_t> count(static_cast<size_t>(ns) + 1, 0);
+  for (int64_t t = 0; t < nt; ++t)
+    if (tri_cell[t] >= 0) ++count[tri_cell[t] + 1];
+  for (int32_t sc : multi_cells) ++count[sc + 1];
+  for (int64_t s = 0; s < ns; ++s) count[s + 1] += count[s];
+  std::vector<int32_t> cell_tris(static_cast<size_t>(count[ns]));
+  {
+    std::vector<int32_t> fill(count.begin(), count.end() - 1);
+    size_t m = 0;
+    for (int64_t t = 0; t < nt; ++t) {
+      if (tri_cell[t] >= 0) {
+        cell_tris[size_t(fill[tri_cell[t]]++)] = int32_t(t);
+      } else if (tri_cell[t] == -2) {
+        for (int32_t q = multi_off[m]; q < multi_off[m + 1]; ++q) cell_tris[size_t(fill[multi_cells[q]]++)] = int32_t(t);
+        ++m;
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- candidates
+  std::vector<uint8_t> candidate(static_cast<size_t>(ns), 0);
+  parallel_for(ns, [&](int64_t s) {
+    candidate[s] = local_components(cell_tris.data() + count[s], count[s + 1] - count[s], tris, V.rows()) > 1;
+  }, 64);
+  // Non-candidate cells around a grid point share its node: they must connect within the block.
+  auto analysed = [&](int64_t id) { return surf_of[id] >= 0 && candidate[surf_of[id]]; };
+  for (bool changed = true; changed;) {
+    changed = false;
+    std::vector<uint8_t> visited(size_t(int64_t(dims.x() + 1) * (dims.y() + 1) * (dims.z() + 1)), 0);
+    for (int64_t s = 0; s < ns; ++s) {
+      if (candidate[s]) continue;
+      const Eigen::Vector3i X = g.coords(surf_cells[s]);
+      for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector3i p = X + Eigen::Vector3i(corner & 1, (corner >> 1) & 1, corner >> 2);
+        const int64_t pid = p.x() + int64_t(dims.x() + 1) * (p.y() + int64_t(dims.y() + 1) * p.z());
+        if (visited[pid]) continue;
+        visited[pid] = 1;
+        Eigen::Vector3i cells[8];
+        int64_t ids[8];
+        int n = 0;
+        for (int o = 0; o < 8; ++o) {
+          const Eigen::Vector3i c = p - Eigen::Vector3i(1 - (o & 1), 1 - ((o >> 1) & 1), 1 - (o >> 2));
+          if (!g.contains(c)) continue;
+          const int64_t id = g.index(c);
+          if (!(marks[id] & kReal) || analysed(id)) continue;
+          cells[n] = c;
+          ids[n++] = id;
+        }
+        if (n < 2) continue;
+        TinyUnionFind uf(n);
+        for (int i = 0; i < n; ++i)
+          for (int j = i + 1; j < n; ++j) {
+            const Eigen::Vector3i o = cells[j] - cells[i];
+            const bool si = surf_of[ids[i]] >= 0, sj = surf_of[ids[j]] >= 0;
+            const bool face = o.cwiseAbs().sum() == 1;
+            bool linked;
+            if (si && sj) linked = (shares[surf_of[ids[i]]].load(std::memory_order_relaxed) >> offset_bit(o)) & 1u;
+            else if (si || sj) linked = face;
+            else linked = true;  // two full cells
+            if (linked) uf.unite(i, j);
+          }
+        int roots = 0;
+        for (int i = 0; i < n; ++i) roots += uf.find(i) == i;
+        if (roots < 2) continue;
+        for (int i = 0; i < n; ++i)
+          if (surf_of[ids[i]] >= 0 && !candidate[surf_of[ids[i]]]) {
+            candidate[surf_of[ids[i]]] = 1;
+            changed = true;
+          }
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- voxels of the candidates
+  std::vector<int32_t> block_of_surf(static_cast<size_t>(ns), -1);
+  std::vector<int32_t> cand_surf;  // surface index of each candidate
+  for (int64_t s = 0; s < ns; ++s)
+    if (candidate[s]) {
+      block_of_surf[s] = int32_t(cand_surf.size());
+      cand_surf.push_back(int32_t(s));
+    }
+  const int64_t nb = int64_t(cand_surf.size());
+  if (nb == 0) return out;
+  const int64_t k3 = int64_t(k) * k * k;
+  out.voxels = nb * k3;
+  std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
+  const double hv = h / k;
+  const Eigen::Vector3d vhalf = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 1e-9));
+  auto block_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {
+    if (!g.contains(c)) return -1;
+    const int32_t s = surf_of[g.index(c)];
+    return s >= 0 ? block_of_surf[s] : -1;
+  };
+  auto vindex = [k](int i, int j, int l) { return i + int64_t(k) * (j + int64_t(k) * l); };
+
+  parallel_for(nb, [&](int64_t b) {
+    const int32_t s = cand_surf[b];
+    const Eigen::Vector3i X = g.coords(surf_cells[s]);
+    const Eigen::Vector3d corner = origin + h * X.cast<double>();
+    uint8_t* v = vox.data() + b * k3;
+    for (int32_t q = count[s]; q < count[s + 1]; ++q) {
+      const Eigen::Vector3i& t = tris[cell_tris[q]];
+      const Eigen::Vector3d a = V.row(t[0]), bb = V.row(t[1]), c = V.row(t[2]);
+      const Eigen::Vector3d lo = a.cwiseMin(bb).cwiseMin(c), hi = a.cwiseMax(bb).cwiseMax(c);
+      int v0[3], v1[3];
+      for (int w = 0; w < 3; ++w) {
+        v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - 1e-7)), 0, k - 1);
+        v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + 1e-7)), 0, k - 1);
+      }
+      for (int l = v0[2]; l <= v1[2]; ++l)
+        for (int j = v0[1]; j <= v1[1]; ++j)
+          for (int i = v0[0]; i <= v1[0]; ++i) {
+            uint8_t& cell = v[vindex(i, j, l)];
+            if (cell) continue;
+            const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
+            if (geometry::triangle_box_overlap(centre, vhalf, a, bb, c)) cell = 1;
+          }
+    }
+  }, 4);
+
+  // Air: flood fill through the candidates from faces that border an empty or outside cell.
+  std::vector<int64_t> stack;
+  auto face_voxel = [&](int axis, int layer, int u, int w) {
+    int c[3];
+    c[axis] = layer;
+    c[(axis + 1) % 3] = u;
+    c[(axis + 2) % 3] = w;
+    return vindex(c[0], c[1], c[2]);
+  };
+  for (int64_t b = 0; b < nb; ++b) {
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
+    for (int f = 0; f < 6; ++f) {
+      const int axis = f / 2, side = f % 2;
+      Eigen::Vector3i Y = X;
+      Y[axis] += side ? 1 : -1;
+      if (g.contains(Y) && (marks[g.index(Y)] & (kSurface | kInside))) continue;
+      for (int w = 0; w < k; ++w)
+        for (int u = 0; u < k; ++u) {
+          const int64_t vi = face_voxel(axis, side ? k - 1 : 0, u, w);
+          if (vox[b * k3 + vi] == 0) {
+            vox[b * k3 + vi] = 2;
+            stack.push_back(b * k3 + vi);
+          }
+        }
+    }
+  }
+  while (!stack.empty()) {
+    const int64_t id = stack.back();
+    stack.pop_back();
+    const int64_t b = id / k3, vi = id % k3;
+    const int c[3] = {int(vi % k), int((vi / k) % k), int(vi / (int64_t(k) * k))};
+    for (int f = 0; f < 6; ++f) {
+      const int axis = f / 2, step = f % 2 ? 1 : -1;
+      int n[3] = {c[0], c[1], c[2]};
+      n[axis] += step;
+      int64_t nbk = b;
+      if (n[axis] < 0 || n[axis] >= k) {
+        Eigen::Vector3i Y = g.coords(surf_cells[cand_surf[b]]);
+        Y[axis] += step;
+        nbk = block_of_cell(Y);
+        if (nbk < 0) continue;
+        n[axis] = (n[axis] + k) % k;
+      }
+      const int64_t nid = nbk * k3 + vindex(n[0], n[1], n[2]);
+      if (vox[nid] == 0) {
+        vox[nid] = 2;
+        stack.push_back(nid);
+      }
+    }
+  }
+
+  // Pieces: 6-connected components of the material voxels of each cell.
+  std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
+  parallel_for(nb, [&](int64_t b) {
+    uint8_t* v = vox.data() + b * k3;
+    std::vector<int32_t> todo;
+    int32_t np = 0;
+    for (int64_t start = 0; start < k3; ++start) {
+      if (v[start] >= 2) continue;
+      const uint8_t label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
+      ++np;
+      v[start] = label;
+      todo.push_back(int32_t(start));
+      while (!todo.empty()) {
+        const int32_t vi = todo.back();
+        todo.pop_back();
+        const int c[3] = {vi % k, (vi / k) % k, vi / (k * k)};
+        for (int f = 0; f < 6; ++f) {
+          int n[3] = {c[0], c[1], c[2]};
+          n[f / 2] += f % 2 ? 1 : -1;
+          if (n[f / 2] < 0 || n[f / 2] >= k) continue;
+          const int64_t ni = vindex(n[0], n[1], n[2]);
+          if (v[ni] < 2) {
+            v[ni] = label;
+            todo.push_back(int32_t(ni));
+          }
+        }
+      }
+    }
+    pieces[b] = std::max(1, std::min(np, 253));
+  }, 4);
+
+  // Links across faces, per analysed cell (deterministic order).
+  std::vector<std::vector<PieceLink>> links(static_cast<size_t>(nb));
+  parallel_for(nb, [&](int64_t b) {
+    const int64_t xid = surf_cells[cand_surf[b]];
+    const Eigen::Vector3i X = g.coords(xid);
+    const uint8_t* v = vox.data() + b * k3;
+    auto& mine = links[b];
+    for (int f = 0; f < 6; ++f) {
+      const int axis = f / 2, side = f % 2;
+      Eigen::Vector3i Y = X;
+      Y[axis] += side ? 1 : -1;
+      if (!g.contains(Y)) continue;
+      const int64_t yid = g.index(Y);
+      if (!(marks[yid] & kReal)) continue;
+      const int64_t yb = block_of_cell(Y);
+      const int layer = side ? k - 1 : 0;
+      if (yb >= 0) {
+        if (!side) continue;  // the pair is listed once, from its lower cell
+        const uint8_t* w = vox.data() + yb * k3;
+        std::vector<std::pair<int32_t, int32_t>> pairs;
+        for (int q = 0; q < k; ++q)
+          for (int u = 0; u < k; ++u) {
+            const uint8_t a = v[face_voxel(axis, layer, u, q)], c = w[face_voxel(axis, 0, u, q)];
+            if (a >= 3 && c >= 3) pairs.emplace_back(a - 3, c - 3);
+          }
+        std::sort(pairs.begin(), pairs.end());
+        pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+        for (const auto& pr : pairs) mine.push_back({xid, pr.first, f, yid, pr.second});
+      } else {
+        std::vector<uint8_t> has(static_cast<size_t>(pieces[b]), 0);
+        for (int q = 0; q < k; ++q)
+          for (int u = 0; u < k; ++u) {
+            const uint8_t a = v[face_voxel(axis, layer, u, q)];
+            if (a >= 3) has[a - 3] = 1;
+          }
+        for (int32_t p = 0; p < pieces[b]; ++p)
+          if (has[p]) mine.push_back({xid, p, f, yid, -1});
+      }
+    }
+  }, 4);
+
+  // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
+  parallel_for(V.rows(), [&](int64_t vtx) {
+    const int64_t cid = vertex_cells[vtx];
+    const int32_t s = surf_of[cid];
+    if (s < 0 || block_of_surf[s] < 0) return;
+    const int64_t b = block_of_surf[s];
+    const Eigen::Vector3i X = g.coords(cid);
+    const Eigen::Vector3d local = (V.row(vtx).transpose() - origin) / h - X.cast<double>();
+    int c[3];
+    for (int w = 0; w < 3; ++w) c[w] = std::clamp(int(std::floor(local[w] * k)), 0, k - 1);
+    const uint8_t* v = vox.data() + b * k3;
+    uint8_t label = v[vindex(c[0], c[1], c[2])];
+    if (label < 3) {
+      int64_t best = -1, best_d = std::numeric_limits<int64_t>::max();
+      for (int64_t vi = 0; vi < k3; ++vi) {
+        if (v[vi] < 3) continue;
+        const int64_t dx = vi % k - c[0], dy = (vi / k) % k - c[1], dz = vi / (int64_t(k) * k) - c[2];
+        const int64_t d2 = dx * dx + dy * dy + dz * dz;
+        if (d2 < best_d) {
+          best_d = d2;
+          best = vi;
+        }
+      }
+      label = best >= 0 ? v[best] : 3;
+    }
+    out.vertex_piece[vtx] = label - 3;
+  }, 4096);
+
+  for (int64_t b = 0; b < nb; ++b) {
+    out.cells.push_back(surf_cells[cand_surf[b]]);
+    out.pieces.push_back(pieces[b]);
+    out.links.insert(out.links.end(), links[b].begin(), links[b].end());
+  }
+  return out;
+}
+
+}  // namespace larap

@@ -1,0 +1,63 @@
+// Pieces per cell: which kept cells of the lattice grid hold more than one connected piece of the
+// solid, and how the pieces of neighbouring cells connect (the virtual node algorithm: Molino,
+// Bao and Fedkiw 2004; Nesme et al. 2009). Internal to the lattice builder.
+//
+// 1. Candidates. Only cells that may hold several pieces are analysed:
+//    - a surface cell whose overlapping triangles form more than one connected component through
+//      shared vertices (counted inside the cell: a fork's two tines joined far away are two);
+//    - the non-candidate kept cells around a grid point are about to share that point's node; if
+//      their surfaces do not connect within the 2x2x2 block (no triangle overlaps two of them and
+//      no inside cell joins them), the surface cells among them are analysed too. Repeated until
+//      nothing changes.
+// 2. Voxels. Every candidate cell gets k^3 voxels (k = split_resolution). Surface voxels: a
+//    triangle overlaps the voxel (exact test, geometry.h). Air: non-surface voxels reached by a
+//    6-connected flood fill through the candidate cells, started from the faces that border a
+//    cell that is neither surface nor inside. Material: everything else (so sheets, soups, open
+//    and flipped meshes all have material: at least their surface voxels).
+// 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
+//    analysed cells connect when material voxels touch across the face; a piece connects to a
+//    non-analysed kept neighbour when it has material on the shared face.
+// Two surfaces more than 2 h / k apart always have a voxel of air between them, so they separate
+// (if the air between them reaches a seed); closer ones may merge.
+#pragma once
+#include <larap/mesh.h>
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <vector>
+
+namespace larap {
+
+enum CellMark : uint8_t {
+  kSurface = 1,
+  kInside = 2,
+  kVertex = 4,
+  kDilation = 8,  // build-time only: counts towards the target cell count like before
+  kOutside = 16,  // reached by the flood fill from the grid border (build-time only)
+};
+constexpr uint8_t kReal = kSurface | kInside | kVertex;
+
+struct PieceLink {
+  int64_t a_cell;   // grid index of an analysed cell
+  int32_t a_piece;  // its piece
+  int32_t face;     // 2 * axis + (1: towards +axis, 0: towards -axis)
+  int64_t b_cell;   // grid index of the neighbour across that face
+  int32_t b_piece;  // its piece, or -1 when it is not analysed (its only copy)
+};
+
+struct CellPieces {
+  std::vector<int64_t> cells;     // analysed cells (grid indices), ascending
+  std::vector<int32_t> pieces;    // number of pieces of each analysed cell (>= 1)
+  std::vector<PieceLink> links;   // every connection once (a_cell < b_cell when both analysed)
+  std::vector<int32_t> vertex_piece;  // #V piece of each vertex in its cell (0 where not analysed)
+  int64_t voxels = 0;             // voxels analysed (for the record)
+};
+
+// Grid: cells of size h from `origin`, `dims` per axis, marks as above (kSurface, kInside and
+// kVertex final). vertex_cells: grid index of each vertex's cell.
+CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
+                            const std::vector<uint8_t>& marks, const RowMatrixX3d& V,
+                            const std::vector<Eigen::Vector3i>& tris,
+                            const std::vector<int64_t>& vertex_cells, int k);
+
+}  // namespace larap

@@ -11,14 +11,19 @@ It happens:
 
 * :data:`DELAY` seconds after the last live move (a ``bpy.app.timers`` timer, postponed by each
   move, so playback and drags of targets catch up once they pause);
-* before render, save (also the save Blender offers on quit), object bake and loading another
-  file (``render_init``/``render_pre``, ``save_pre``, ``object_bake_pre``, ``load_pre``), on the
-  main thread; before LARAP's own Bake/Apply (``solving.current_pose``) and ``larap.solve``;
+* before render, save (also the save Blender offers on quit or before opening another file) and
+  object bake (``render_init``/``render_pre``, ``save_pre``, ``object_bake_pre``), on the main
+  thread; before LARAP's own Bake/Apply (``solving.current_pose``) and ``larap.solve``;
 * on a frame change while a render job runs (the live update writes the final pose directly);
 * when Live or the preview is turned off (their property updates);
 * after an undo/redo or a file load, for live meshes whose restored pose key was not solved for
   the restored targets (the signature stored in the object tells), so undo and reopening show
   the caught-up pose, and a file whose pose key is up to date is left exactly as it is.
+
+Loading another file is not a catch-up: ``load_pre`` cancels the timer and ends the previews
+(handlers.py), because the open file's unsaved state, the pending pose with it, is being
+discarded anyway (Blender offers to save first, and that save catches up); the file on disk
+keeps what was saved.
 
 Blender has no handler before an export operator: an export run at human speed starts after
 the timer has caught up; a script that exports right after moving targets calls

@@ -150,7 +150,9 @@ def larap_frame_change_post(scene, depsgraph=None):
 
 @persistent
 def larap_load_pre(*_args):
-    """Another file replaces this one: no preview or pending catch-up carries over."""
+    """Another file replaces this one: no preview or pending catch-up carries over. Nothing is
+    caught up here: the open file's unsaved state (a pending pose too) is being discarded, and a
+    save offered first went through save_pre, which caught up."""
     catchup.cancel_timer()
     preview.reset_all()
 

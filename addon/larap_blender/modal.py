@@ -138,7 +138,13 @@ class LARAP_OT_pose(bpy.types.Operator):
             if not quiet:
                 self.report({"ERROR"}, "No handles with vertices and targets to grab")
             return None
-        scr = _project(context.region, context.region_data, pts)
+        # Projected once per pose and view (pts is the same array while the pose is): hovering
+        # costs one distance per handle vertex, nothing read from the mesh.
+        view = (tuple(map(tuple, context.region_data.perspective_matrix)), context.region.width, context.region.height)
+        cached = getattr(self, "_screen", None)
+        if cached is None or cached[0] is not pts or cached[1] != view:
+            self._screen = cached = (pts, view, _project(context.region, context.region_data, pts))
+        scr = cached[2]
         dist = np.linalg.norm(scr - np.array(mouse), axis=1)
         i = int(np.argmin(dist))
         if not np.isfinite(dist[i]) or dist[i] > PICK_RADIUS:

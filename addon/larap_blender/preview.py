@@ -23,7 +23,10 @@ visible (view-layer collections, Disable in Viewports, local view).
 
 :func:`blocker` says why the preview cannot show an object truthfully; the caller then writes
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
-pose key, other shape keys mixed in, display as wire/bounds, no GPU shader).
+pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
+artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
+smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
+it hidden as it found it.
 
 Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
 contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the
@@ -40,12 +43,13 @@ from .runtime import runtime
 # Kept across importlib.reload (F8 / re-enable), so a reload never orphans a callback or leaves
 # an object hidden that nothing knows about.
 _DRAW_HANDLE = globals().get("_DRAW_HANDLE")
-_SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool}: objects we hid
+_SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool, "hidden": bool}: objects we hid
 _GPU = {}  # runtime id -> _GpuMesh
 _SHADER = [None, ""]  # compiled shader, error message
 TEX_WIDTH = 2048  # texels per row of the lattice and cell textures
-# ID property set on an object while we hide it (1, or 2 when it was selected): an undo step or
-# an autosave taken meanwhile stores the hidden state with it, and reset_all() undoes it.
+# ID property set on an object while we hide it (1, or 2 when it was selected, 3 when it was
+# hidden already): an undo step or an autosave taken meanwhile stores the hidden state with it,
+# and reset_all() undoes it.
 HIDDEN_PROP = "_larap_preview_hidden"
 
 
@@ -76,6 +80,8 @@ def blocker(obj):
     view_layer = getattr(bpy.context, "view_layer", None)
     if view_layer is None or view_layer.objects.get(obj.name) != obj:
         return "not in the current view layer"
+    if obj.hide_get() and not showing(obj):
+        return "hidden"
     keys = obj.data.shape_keys
     kb = keys.key_blocks.get(s.shape_key) if keys is not None else None
     if kb is None or not keys.use_relative:
@@ -87,6 +93,22 @@ def blocker(obj):
     for other in keys.key_blocks:
         if other != kb and other != keys.reference_key and not other.mute and other.value != 0.0:
             return "other shape keys are mixed in (%s)" % other.name
+    return _shading_blocker(obj.data)
+
+
+def _shading_blocker(me):
+    """The preview shades a mesh all smooth (its vertex normals) or all flat: say so where Blender
+    would shade it otherwise."""
+    if getattr(me, "has_custom_normals", False):
+        return "custom normals"
+    smooth = np.empty(len(me.polygons), dtype=bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    if not smooth.any():
+        return ""
+    if not smooth.all():
+        return "mixed flat and smooth faces"
+    if getattr(me, "use_auto_smooth", False):  # Blender < 4.1: split normals at sharp edges
+        return "auto smooth"
     return ""
 
 
@@ -111,18 +133,22 @@ def _tag_redraw():
 
 def show(obj):
     """Draw ``obj`` from its runtime's lattice (rt.lattice_nodes) instead of its mesh. Returns
-    False when the object cannot be hidden in the view layer (then write the mesh instead)."""
+    False when the object cannot be hidden in the view layer (then write the mesh instead).
+    Builds the per-binding data first (:func:`prepare`), here on the live/drag path: the draw
+    callback only uploads it and never reads or writes the mesh."""
+    prepare(obj)
     key = obj.larap.runtime_id
     if key in _SHOWN:
         _tag_redraw()
         return True
     try:
         selected = obj.select_get()
+        hidden = obj.hide_get()
         obj.hide_set(True)
     except RuntimeError:  # not in the current view layer
         return False
-    _SHOWN[key] = {"select": selected}
-    obj[HIDDEN_PROP] = 2 if selected else 1
+    _SHOWN[key] = {"select": selected, "hidden": hidden}
+    obj[HIDDEN_PROP] = 3 if hidden else 2 if selected else 1
     _tag_redraw()
     return True
 
@@ -136,16 +162,17 @@ def stop(obj):
     entry = _SHOWN.pop(key, None)
     if entry is None:
         return
-    _unhide(obj, entry["select"])
+    _unhide(obj, entry["select"], entry.get("hidden", False))
     _tag_redraw()
 
 
-def _unhide(obj, selected):
+def _unhide(obj, selected, hidden=False):
+    """Put back the object's own hiding and selection as :func:`show` found them."""
     try:
         if HIDDEN_PROP in obj:
             del obj[HIDDEN_PROP]
-        obj.hide_set(False)
-        if selected:
+        obj.hide_set(hidden)
+        if selected and not hidden:
             obj.select_set(True)
     except (RuntimeError, ReferenceError):
         pass
@@ -161,7 +188,7 @@ def reset_all():
         except ReferenceError:
             continue
         if mark is not None:
-            _unhide(obj, mark == 2)
+            _unhide(obj, mark == 2, mark == 3)
 
 
 def forget(key):
@@ -171,7 +198,7 @@ def forget(key):
 
 
 # ----------------------------------------------------------------------------------------------
-# Per-binding data (numpy, then GPU buffers at the first draw)
+# Per-binding data (numpy, built by show() outside the draw callback; GPU buffers at the first draw)
 
 def _vertex_normals(co, tris):
     """Angle-weighted vertex normals (n,3) float32 of the triangles ``tris`` over ``co``."""
@@ -493,14 +520,17 @@ def draw():
         return
     for obj in view_layer.objects:
         try:
-            if obj.type != "MESH" or obj.larap.runtime_id not in _SHOWN:
+            entry = _SHOWN.get(obj.larap.runtime_id) if obj.type == "MESH" else None
+            if entry is None or entry.get("hidden", False):  # not ours, or hidden by the artist
                 continue
             rt = runtime(obj)
             if rt is None or rt.deformer is None or rt.lattice_nodes is None:
                 continue
             if not _visible_here(obj, view_layer, space):
                 continue
-            g = _gpu_mesh(obj, rt)
+            g = _GPU.get(obj.larap.runtime_id)  # built by show() (prepare), never here
+            if g is None or g.deformer is not rt.deformer or g.counts != rt.counts:
+                continue
             if g.batch is None:
                 g.upload(shader)
             if g.version != rt.pose_version:

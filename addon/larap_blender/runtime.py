@@ -46,6 +46,8 @@ class Runtime:
         self.warnings = []
         self.validated = False  # False: the next ensure_runtime does a full validation
         self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
+        self.handle_points = None  # (key, points, owner): session.handle_points of the last pose
+        self.handle_binding = None  # the handle vertices' lattice cells and weights (session.py)
         # Preview and catch-up (preview.py, catchup.py): the lattice of the last interactive pose,
         # whether the pose key is behind what is shown, when the targets last moved, and how
         # many times the engine solved (tests count them).
@@ -161,9 +163,11 @@ def after_undo():
     """undo_post/redo_post: the mesh, its keys, the settings and the targets are what the undo step
     stored; the engines must not carry on from the undone state. Each runtime is re-validated in
     full at its next use (rest shape, topology, vertex groups), its warm start is forgotten, its
-    lattice is no longer drawn as current, the weights of the restored pose key are unknown (so
-    Bake/Apply re-solve), and the restored target matrices are recorded as the ones the restored
-    pose key was solved for (so Live does not overwrite what the undo restored)."""
+    lattice is no longer drawn as current, the weights it records for the restored pose key are
+    unknown (``rt.weights``, which nothing decides by: Bake/Apply go by the pose signature the
+    undo step restored with the object, solving.key_up_to_date), and the restored target matrices
+    are recorded as the ones the restored pose key was solved for (so Live does not overwrite
+    what the undo restored)."""
     prune_runtimes()
     for obj in _bound_meshes():
         rt = _RUNTIMES.get(obj.larap.runtime_id)

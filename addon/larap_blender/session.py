@@ -7,9 +7,11 @@ with the interactive weights (the target matrix passed as an override, so the so
 for the depsgraph; Live leaves a mesh being dragged alone, see :func:`dragging`). With the
 preview (preview.py) a step poses only the lattice and the preview draws it; without it, the
 pose key is written. Confirm evaluates the moved target and writes the final pose of it (one
-pose per set of targets, as Live's catch-up would); cancel restores the pose key, the target's
+pose per set of targets, as Live's catch-up would; when that solve fails, confirm restores as
+cancel does and re-raises); cancel restores the pose key, the target's
 transform and what the pose key was recorded as, bit-exactly, and nothing solves again.
-:func:`handle_points` gives the handle vertices in the current pose, for picking and the overlay.
+:func:`handle_points` gives the handle vertices in the pose shown (the preview's while it shows the
+mesh), for picking and the overlay.
 """
 import bpy
 import numpy as np
@@ -20,7 +22,7 @@ from .errors import LarapError, check_object
 from .mesh_data import key_positions, restore_pose_key
 from .runtime import ensure_runtime, runtime
 from .solving import set_stored_signature, solve, stored_signature
-from .targets import membership, target_alive, target_matrix, target_signature
+from .targets import flat, membership, target_alive, target_matrix, target_signature
 
 _DRAGGING = set()  # runtime ids of meshes with an active PoseSession
 
@@ -43,27 +45,69 @@ def _evaluate_targets():
 
 def handle_points(obj, refresh=True):
     """(world positions (k,3), handle index per point) of the handle vertices in the current pose.
-    ``refresh=False`` (draw callbacks): use the cached vertex-group membership, never touch data."""
+    ``refresh=False`` (draw callbacks, hover): use the cached vertex-group membership, never touch
+    data. Cached in the runtime per pose (``rt.pose_version``), handle groups and object matrix, so
+    hovering reads the pose key once, not at each mouse move; the arrays are read-only."""
     rt = runtime(obj)
     s = obj.larap
     if rt is None or rt.rest is None:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    posed = key_positions(obj, s.shape_key)
-    if posed is None:
-        posed = rt.rest
     groups = membership(obj, rt) if refresh else rt.membership
-    pts, owner = [], []
+    key = (rt.pose_version, rt.membership_hash, s.shape_key, tuple(flat(obj.matrix_world)),
+           tuple((h.vertex_group, h.enabled) for h in s.handles), preview.showing(obj))
+    cached = rt.handle_points
+    if cached is not None and cached[0] == key:
+        return cached[1], cached[2]
+    pts, owner = _handle_points(obj, rt, groups)
+    pts.setflags(write=False)
+    owner.setflags(write=False)
+    rt.handle_points = (key, pts, owner)
+    return pts, owner
+
+
+def _handle_points(obj, rt, groups):
+    """Handle vertices where they are shown: where the preview draws them while it shows the
+    object (the pose key is behind then), else in the pose key (else at rest)."""
+    s = obj.larap
+    ids, owner = [], []
     for i, h in enumerate(s.handles):
         idx = groups.get(h.vertex_group)
         if idx is None or len(idx) == 0 or not h.enabled:
             continue
-        pts.append(posed[idx])
+        ids.append(idx)
         owner.append(np.full(len(idx), i, dtype=np.int64))
-    if not pts:
+    if not ids:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    p = np.concatenate(pts).astype(np.float64)
+    ids = np.concatenate(ids)
+    if preview.showing(obj) and rt.lattice_nodes is not None and rt.deformer is not None:
+        p = _lattice_points(rt, ids)
+    else:
+        posed = key_positions(obj, s.shape_key)
+        p = (posed if posed is not None else rt.rest)[ids].astype(np.float64)
     mw = np.array(obj.matrix_world)
     return p @ mw[:3, :3].T + mw[:3, 3], np.concatenate(owner)
+
+
+def _lattice_points(rt, ids):
+    """Local positions (k,3) of the vertices ``ids`` as the preview draws them from
+    ``rt.lattice_nodes``: the rest position plus the trilinear blend of the displacements of the
+    8 corners of the vertex's cell (corner c's bits are its x, y, z sides), as in the shader. The
+    binding of ``ids`` is kept in ``rt.handle_binding`` while the engine and ``ids`` stay."""
+    d = rt.deformer
+    b = rt.handle_binding
+    if b is None or b[0] is not d or not np.array_equal(b[1], ids):
+        cid, frac = d.trilinear_binding()
+        cid = np.asarray(cid)[ids].astype(np.int64)
+        frac = np.asarray(frac, dtype=np.float64)[ids]
+        corners = np.asarray(d.cell_nodes(), dtype=np.int64).reshape(-1, 8)[cid]
+        w = np.ones((len(ids), 8))
+        for c in range(8):
+            for axis in range(3):
+                w[:, c] *= frac[:, axis] if (c >> axis) & 1 else 1.0 - frac[:, axis]
+        b = rt.handle_binding = (d, ids.copy(), corners, w, np.asarray(d.lattice_rest(), dtype=np.float64))
+    _, _, corners, w, rest_nodes = b
+    disp = np.asarray(rt.lattice_nodes, dtype=np.float64) - rest_nodes
+    return rt.rest[ids].astype(np.float64) + np.einsum("kc,kcx->kx", w, disp[corners])
 
 
 _TRANSFORM_ATTRS = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle", "scale")
@@ -164,6 +208,7 @@ class PoseSession:
         world = self.delta_matrix(translation, rotation, scale) @ self.start_matrix
         self.set_target_matrix(world)
         self.world = world
+        _evaluate_targets()  # targets parented under the dragged one (bones, Empties) follow it now
         overrides = {self.overrides_key: world}
         obj = self.obj
         if weights == "interactive" and not preview.blocker(obj):
@@ -186,6 +231,9 @@ class PoseSession:
         try:
             _evaluate_targets()
             self.last = solve(self.obj, weights="final", validate="fast")
+        except BaseException:
+            self._restore()  # a failed confirm is a cancel (the session is inactive afterwards)
+            raise
         finally:
             self._end()
         return self.last
@@ -195,22 +243,26 @@ class PoseSession:
         ends and nothing solves (Live sees the targets it last saw)."""
         if not self.active:
             return
-        obj = self.obj
         try:
-            _transform_restore(self.target, self.bone, self.transform)
-            if self.wrote:
-                restore_pose_key(obj, self.snapshot)
-            set_stored_signature(obj, self.stored)
-            preview.stop(obj)
-            _evaluate_targets()
-            rt = runtime(obj)
-            if rt is not None:
-                rt.needs_catchup = False
-                rt.lattice_nodes = None
-                rt.lattice_current = False
-                rt.pose_version += 1
-                rt.target_sig = target_signature(obj)
-                if rt.deformer is not None:
-                    rt.deformer.reset()
+            self._restore()
         finally:
             self._end()
+
+    def _restore(self):
+        """What cancel undoes (the session still active)."""
+        obj = self.obj
+        _transform_restore(self.target, self.bone, self.transform)
+        if self.wrote:
+            restore_pose_key(obj, self.snapshot)
+        set_stored_signature(obj, self.stored)
+        preview.stop(obj)
+        _evaluate_targets()
+        rt = runtime(obj)
+        if rt is not None:
+            rt.needs_catchup = False
+            rt.lattice_nodes = None
+            rt.lattice_current = False
+            rt.pose_version += 1
+            rt.target_sig = target_signature(obj)
+            if rt.deformer is not None:
+                rt.deformer.reset()

@@ -12,6 +12,11 @@ targets and the settings, never on the drag or live history (the engine is deter
 records what it was solved from in the object (:func:`pose_signature`, stored in the object's ID
 property ``POSE_SIGNATURE_PROP``, which travels with undo steps and the .blend): Bake, Apply, undo,
 reload and Live compare it with the current targets to know whether the pose key is up to date.
+The signature has two parts: the targets and settings (cheap to read anywhere), and the content
+of the handle groups (their vertices and weights, ``rt.membership_hash``), which only a runtime
+that read the vertex groups knows. Bake and Apply read them afresh (:func:`current_pose`), so a
+weight painted after the pose makes them solve again; handlers with no runtime, or one whose
+groups are not read yet, compare the first part only.
 
 An interactive solve with ``lattice_only`` poses only the lattice (``Deformer.pose_lattice``) for
 the GPU preview (preview.py); the mesh is written later by the catch-up (catchup.py).
@@ -24,8 +29,8 @@ import numpy as np
 from . import preview
 from .errors import check_object, engine_errors
 from .mesh_data import key_positions, write_pose
-from .runtime import ensure_runtime, runtime
-from .targets import gather, target_signature
+from .runtime import ensure_runtime, resolve_device, runtime
+from .targets import gather, membership, target_signature
 
 FINAL_TOLERANCE = 1e-5  # relative energy decrease at which a final solve stops
 POSE_SIGNATURE_PROP = "_larap_pose"  # ID property: pose_signature() of the targets the pose key holds
@@ -34,16 +39,20 @@ INTERACTIVE = "interactive"  # ... or this: the pose key holds an interactive (u
 
 def pose_signature(obj):
     """A digest of everything a final pose depends on besides the rest shape: the target matrices
-    (and the object's), the handles, the final weights, gamma, the iterations and the lattice
-    settings. Equal signatures give bit-identical final poses."""
+    (and the object's), the handles, the final weights, gamma, the iterations, the lattice
+    settings and the device, then "/" and the handle groups' content (vertices and weights) as
+    the object's runtime last read it ("" when it has not: no runtime, or its groups are to be
+    read again). Equal signatures give bit-identical final poses."""
     s = obj.larap
     h = hashlib.blake2b(digest_size=16)
     h.update(repr(target_signature(obj)).encode())
     h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix), float(x.weight))
                    for x in s.handles]).encode())
     h.update(repr((s.weights_final, float(s.gamma), int(s.iterations), s.resolution_mode, int(s.cells),
-                   float(s.cell_size), s.bind_topology, s.shape_key)).encode())
-    return h.hexdigest()
+                   float(s.cell_size), s.bind_topology, s.shape_key, resolve_device(s))).encode())
+    rt = runtime(obj)
+    groups = rt.membership_hash if rt is not None and rt.membership_sig is not None else ""
+    return h.hexdigest() + "/" + groups
 
 
 def stored_signature(obj):
@@ -62,9 +71,14 @@ def set_stored_signature(obj, value):
 
 
 def key_up_to_date(obj):
-    """The pose key holds the converged final pose of the current targets."""
+    """The pose key holds the converged final pose of the current targets (and of the handle
+    groups' content, where the runtime has read it: see pose_signature)."""
     stored = stored_signature(obj)
-    return bool(stored) and stored == pose_signature(obj)
+    if not stored:
+        return False
+    head, _, groups = pose_signature(obj).partition("/")
+    stored_head, _, stored_groups = stored.partition("/")
+    return stored_head == head and (not groups or stored_groups == groups)
 
 
 class SolveResult:
@@ -159,6 +173,7 @@ def current_pose(obj):
     check_object(obj, need_bound=True)
     s = obj.larap
     rt = ensure_runtime(obj, "full")
+    membership(obj, rt)  # the handle groups as they are now (a weight painted since the pose)
     posed = key_positions(obj, s.shape_key)
     if posed is not None and not rt.needs_catchup and key_up_to_date(obj):
         return posed

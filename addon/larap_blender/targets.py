@@ -239,6 +239,13 @@ def _resolve_groups(rt, names, n):
     return groups, vweights
 
 
+def singular(a):
+    """The engine's test for a handle map it rejects: |det A| <= 1e-9 (||A||_F / sqrt 3)^3, relative
+    to the map's size (a target flattened to scale (1, 1, 1e-10) is singular; a uniform 1e-5 is not)."""
+    norm = np.linalg.norm(a) / np.sqrt(3.0)
+    return not abs(np.linalg.det(a)) > 1e-9 * norm ** 3
+
+
 def gather(obj, rt, overrides=None):
     """The HandlePose of the object's usable handles now; warnings name the skipped ones."""
     s = obj.larap
@@ -257,8 +264,9 @@ def gather(obj, rt, overrides=None):
         except LarapError as exc:
             warnings.append("%s; skipped" % exc)
             continue
-        if not np.isfinite(local).all() or abs(np.linalg.det(local[:3, :3])) < 1e-12:
-            warnings.append("handle %r skipped: its target is scaled to zero" % (h.vertex_group or "(no group)"))
+        if not np.isfinite(local).all() or singular(local[:3, :3]):
+            warnings.append("handle %r skipped: its target is scaled to zero (or flat)"
+                            % (h.vertex_group or "(no group)"))
             continue
         names.append(h.vertex_group)
         weights.append(float(h.weight))

@@ -458,3 +458,96 @@ def test_undo_of_a_step_stored_during_the_preview_shows_the_object(core, gpu_pre
     assert not obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
     assert not gpu_preview.showing(obj)
     assert_caught_up(core, obj)
+
+
+def test_preview_leaves_a_mesh_the_artist_hid_hidden(core, gpu_preview):
+    """A live mesh hidden with H is posed by writing it (the preview would draw it) and stays
+    hidden after the catch-up; show()/stop() on a hidden mesh leave it hidden."""
+    from larap_blender import catchup
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    obj.hide_set(True)
+    assert gpu_preview.blocker(obj) == "hidden"
+    before = key_bytes(obj)
+    live_move(targets, 0.5)
+    assert key_bytes(obj) != before and not gpu_preview.showing(obj)  # written, not drawn
+    catchup.catch_up_all()
+    assert obj.hide_get()
+    assert_caught_up(core, obj)
+    # Defensive: a direct show() of a hidden mesh is undone to hidden (and never drawn).
+    assert gpu_preview.show(obj) and obj.get(gpu_preview.HIDDEN_PROP) == 3
+    gpu_preview.stop(obj)
+    assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
+    gpu_preview.show(obj)
+    gpu_preview.reset_all()
+    assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj
+    obj.hide_set(False)
+    assert gpu_preview.blocker(obj) == ""
+
+
+def test_handle_points_follow_the_preview_not_the_stale_key(core, gpu_preview):
+    """While the preview shows a drag, the handle vertices (picking, overlay) are where the
+    preview draws them (the engine's transfer of the preview's lattice), not in the pose key."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.location = (0.3, -0.2, 0.1)  # world points: the object's matrix applies
+    bpy.context.view_layer.update()
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.4, 0.6))
+    assert gpu_preview.showing(obj)
+    rt = core.runtime(obj)
+    pts, owner = core.handle_points(obj, refresh=False)
+    mw = np.array(obj.matrix_world)
+    local = (pts - mw[:3, 3]) @ np.linalg.inv(mw[:3, :3]).T
+    # The engine's own transfer of the lattice it holds (a 0-iteration solve transfers it).
+    expect = rt.deformer.solve(transforms=core.gather(obj, rt).transforms, iterations=0)
+    tol = 1e-5 * rt.deformer.diagonal
+    assert np.abs(local[owner == 1] - expect[right]).max() < tol
+    assert np.abs(local[owner == 0] - expect[left]).max() < tol
+    assert np.abs(local[owner == 1] - coords(obj, "LARAP")[right]).max() > 0.3  # the key is behind
+    session.cancel()
+    pts, owner = core.handle_points(obj, refresh=False)
+    assert np.abs(pts[owner == 1] - (coords(obj, "LARAP")[right] @ mw[:3, :3].T + mw[:3, 3])).max() < 1e-6
+
+
+def test_preview_data_is_built_before_it_shows_not_in_the_draw(core, gpu_preview, monkeypatch):
+    """show() builds the per-binding data (triangles, normals) on the live/drag path; the draw
+    callback finds it built for the current engine (and never builds it)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    built = []
+    init = gpu_preview._GpuMesh.__init__
+
+    def counted(self, *a, **k):
+        built.append(1)
+        init(self, *a, **k)
+    monkeypatch.setattr(gpu_preview._GpuMesh, "__init__", counted)
+    live_move(targets, 0.5)
+    assert gpu_preview.showing(obj)
+    g = gpu_preview._GPU.get(obj.larap.runtime_id)
+    rt = core.runtime(obj)
+    assert g is not None and g.deformer is rt.deformer and g.counts == rt.counts
+    assert len(g.arrays["rest"]) == len(rest) and len(g.tris) == len(obj.data.loop_triangles)
+    live_move(targets, 0.2)
+    assert len(built) == 1  # once per binding, not per move
+
+
+def test_preview_falls_back_for_shading_it_does_not_draw(core, gpu_preview):
+    """The preview shades all smooth or all flat: mixed flat and smooth faces, custom normals and
+    auto smooth make posing write the mesh instead."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    me = obj.data
+    assert gpu_preview.blocker(obj) == ""
+    me.polygons[0].use_smooth = True
+    assert gpu_preview.blocker(obj) == "mixed flat and smooth faces"
+    before = key_bytes(obj)
+    live_move(targets, 0.5)
+    assert key_bytes(obj) != before and not gpu_preview.showing(obj) and not obj.hide_get()
+    for p in me.polygons:
+        p.use_smooth = True
+    assert gpu_preview.blocker(obj) == ""
+    if hasattr(me, "use_auto_smooth"):  # Blender < 4.1
+        me.use_auto_smooth = True
+        assert gpu_preview.blocker(obj) == "auto smooth"
+    me.normals_split_custom_set_from_vertices([(0.0, 0.0, 1.0)] * len(me.vertices))
+    assert me.has_custom_normals and gpu_preview.blocker(obj) == "custom normals"

@@ -93,10 +93,43 @@ def test_overlapping_groups_first_handle_wins(core):
     assert len(ids) == len(np.unique(ids))
 
 
-@pytest.mark.parametrize("scale", [0.0])
+@pytest.mark.parametrize("scale", [(0.0, 0.0, 0.0), (1.0, 1.0, 1e-10), (100.0, 100.0, 1e-9)])
 def test_target_scaled_to_zero_is_skipped_with_a_warning(core, scale):
+    """A target the engine would reject as singular (relative to its size) is skipped with a
+    warning; the other handle still poses."""
     obj, rest, left, right, targets = bar_with_handles(core)
-    targets[1].scale = (scale, scale, scale)
+    targets[1].scale = scale
+    targets[0].location.z += 0.5
     bpy.context.view_layer.update()
     res = core.solve(obj, weights="final")
-    assert any("scaled to zero" in w for w in res.warnings)
+    assert any("'Right' skipped" in w and "scaled to zero" in w for w in res.warnings)
+    assert res.handles == len(left)
+    assert np.abs(coords(obj, "LARAP")[left, 2] - rest[left, 2] - 0.5).max() < 0.02 * diagonal(rest)
+
+
+def test_a_small_uniform_scale_is_not_singular(core):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].scale = (1e-5, 1e-5, 1e-5)  # below the old absolute 1e-12
+    bpy.context.view_layer.update()
+    res = core.solve(obj, weights="final")
+    assert not res.warnings and res.handles == len(left) + len(right)
+
+
+def test_a_weight_painted_after_the_pose_makes_bake_solve_again(core):
+    """The stored pose signature covers the handle groups' content: after a converged pose, a
+    painted weight makes the pose key stale, and Bake writes the final pose of the new weights."""
+    from larap_blender import solving
+    from test_catchup import final_pose
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.8
+    targets[1].rotation_euler.x = 0.6
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    stale = coords(obj, "LARAP")
+    assert solving.key_up_to_date(obj)
+    middle = np.flatnonzero(np.abs(rest[:, 0]) < 0.15)
+    obj.vertex_groups["Right"].add([int(i) for i in middle], 1.0, "REPLACE")  # paint the middle in
+    assert bpy.ops.larap.bake_shape_key(name="Baked") == {"FINISHED"}
+    baked = coords(obj, "Baked")
+    assert np.abs(baked[middle] - stale[middle]).max() > 0.05 * diagonal(rest)
+    assert np.array_equal(baked.astype(np.float32), final_pose(core, obj))
+    assert solving.key_up_to_date(obj)

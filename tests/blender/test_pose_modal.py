@@ -123,3 +123,39 @@ def test_pick_misses_and_errors(core):
     assert op.modal(ctx, event("RIGHTMOUSE")) == {"CANCELLED"}
     ctx.area = None
     assert make_operator().invoke(ctx, event("LEFTMOUSE")) == {"CANCELLED"}
+
+
+def test_hover_reads_the_pose_once_per_pose(core, monkeypatch):
+    """Hovering while Pose waits for a click reads the pose key and projects the handle vertices
+    once per pose and view, not at each mouse move; a new pose is read again."""
+    from larap_blender import modal, overlay, session
+    obj, rest, left, right, targets = bar_with_handles(core)
+    reads = {"key": 0, "project": 0}
+    key_positions, project = session.key_positions, modal._project
+
+    def counted_key(*a, **k):
+        reads["key"] += 1
+        return key_positions(*a, **k)
+
+    def counted_project(*a, **k):
+        reads["project"] += 1
+        return project(*a, **k)
+    monkeypatch.setattr(session, "key_positions", counted_key)
+    monkeypatch.setattr(modal, "_project", counted_project)
+    ctx, _ = fake_context(obj)
+    op = make_operator()
+    assert op.invoke(ctx, event("MOUSEMOVE", pos=(0, 0))) == {"RUNNING_MODAL"}
+    for x in range(0, 800, 20):
+        op.modal(ctx, event("MOUSEMOVE", "NOTHING", pos=(x, 400)))
+    op.modal(ctx, event("MOUSEMOVE", "NOTHING", pos=screen(2.0, 0.2)))
+    assert reads == {"key": 1, "project": 1}
+    assert overlay.picking(obj) == 1  # over the right cap
+    # A new pose (a solve) is read and projected again, and picking sees it.
+    targets[1].location.y += 1.0
+    bpy.ops.larap.solve()
+    op.modal(ctx, event("MOUSEMOVE", "NOTHING", pos=screen(2.0, 1.2)))
+    assert reads == {"key": 2, "project": 2}
+    assert overlay.picking(obj) == 1
+    pts, owner = session.handle_points(obj, refresh=False)
+    assert np.abs(pts[owner == 1] - coords(obj, "LARAP")[right]).max() < 1e-6  # object at the origin
+    op.modal(ctx, event("ESC"))

@@ -8,6 +8,7 @@ import pytest
 from mathutils import Quaternion, Vector
 
 from conftest import bar_with_handles, coords, diagonal
+from test_catchup import gpu_preview  # noqa: F401 (fixture)
 
 
 def _snapshot_target(t):
@@ -76,3 +77,67 @@ def test_pose_operator_needs_3d_view(core):
     obj, *_ = bar_with_handles(core)
     with pytest.raises(RuntimeError, match="3D View|interactive"):
         bpy.ops.larap.pose("INVOKE_DEFAULT")
+
+
+def test_failed_confirm_restores_like_cancel(core, monkeypatch, gpu_preview):
+    """The final solve of confirm fails: the pose key, the target and its record are restored,
+    the preview ends (the mesh is shown again) and nothing is left to catch up."""
+    import larap
+    from larap_blender import session as session_module, solving
+    from test_pose_modal import event, fake_context, make_operator
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    before = coords(obj, "LARAP").astype(np.float32).tobytes()
+    t_before = _snapshot_target(targets[1])
+    sig_before = solving.stored_signature(obj)
+    engine_solve = larap.Deformer.solve
+    for via_operator in (False, True):
+        if via_operator:
+            ctx, _ = fake_context(obj)
+            op = make_operator(handle=1)
+            assert op.invoke(ctx, event("MOUSEMOVE", pos=(600, 400))) == {"RUNNING_MODAL"}
+            op.modal(ctx, event("MOUSEMOVE", "NOTHING", pos=(600, 480)))
+        else:
+            session = core.PoseSession(obj, 1).begin()
+            session.update(translation=(0.0, 0.2, 0.5))
+        assert gpu_preview.showing(obj) and obj.hide_get()
+        assert targets[1].matrix_world.translation.z != 0.0 or targets[1].matrix_world.translation.y != 0.0
+
+        def boom(self, *a, **k):
+            raise RuntimeError("engine failed")
+        monkeypatch.setattr(larap.Deformer, "solve", boom)
+        if via_operator:
+            assert op.modal(ctx, event("RET")) == {"CANCELLED"}
+            assert any("engine failed" in msg for kind, msg in op.reports if "ERROR" in kind)
+            session = op.session
+        else:
+            with pytest.raises(core.LarapError, match="engine failed"):
+                session.confirm()
+        monkeypatch.setattr(larap.Deformer, "solve", engine_solve)
+        rt = core.runtime(obj)
+        assert not session.active and not session_module.dragging(obj)
+        assert coords(obj, "LARAP").astype(np.float32).tobytes() == before
+        assert _snapshot_target(targets[1]) == t_before
+        assert solving.stored_signature(obj) == sig_before
+        assert not gpu_preview.showing(obj) and not obj.hide_get()
+        assert not rt.needs_catchup and rt.lattice_nodes is None
+
+
+def test_targets_parented_under_the_dragged_one_follow_at_each_step(core):
+    """An Empty parented under the dragged target moves with it in the same drag step (not one
+    event behind)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    child, parent = targets
+    child.parent = parent
+    child.matrix_parent_inverse = parent.matrix_world.inverted()
+    bpy.context.view_layer.update()
+    session = core.PoseSession(obj, 1).begin()
+    tol = 0.02 * diagonal(rest)
+    for dz in (0.3, 0.6, 0.9):
+        session.update(translation=(0.0, 0.0, dz))
+        pose = coords(obj, "LARAP")
+        assert np.abs(pose[right, 2] - rest[right, 2] - dz).max() < tol
+        assert np.abs(pose[left, 2] - rest[left, 2] - dz).max() < tol
+    session.confirm()
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[:, 2] - rest[:, 2] - 0.9).max() < tol  # the whole bar moved rigidly

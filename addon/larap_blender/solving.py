@@ -49,7 +49,8 @@ def pose_signature(obj):
     h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix), float(x.weight))
                    for x in s.handles]).encode())
     h.update(repr((s.weights_final, float(s.gamma), int(s.iterations), s.resolution_mode, int(s.cells),
-                   float(s.cell_size), s.bind_topology, s.shape_key, resolve_device(s))).encode())
+                   float(s.cell_size), bool(s.split_cells), s.bind_topology, s.shape_key,
+                   resolve_device(s))).encode())
     rt = runtime(obj)
     groups = rt.membership_hash if rt is not None and rt.membership_sig is not None else ""
     return h.hexdigest() + "/" + groups

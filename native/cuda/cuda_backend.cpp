@@ -349,26 +349,17 @@ class CudaBackend final : public Backend {
       const int64_t G = hs_.num_groups();
       std::vector<double>& maps = h_maps_;
       maps.resize(size_t(12) * G);
-      std::vector<Eigen::Matrix3d> A(static_cast<size_t>(G));
-      std::vector<Eigen::Vector3d> b(static_cast<size_t>(G));
+      const GroupMaps gm = group_maps(hs_, targets.groups);
       for (int64_t g = 0; g < G; ++g) {
-        A[g] = targets.groups[g].leftCols<3>();
-        b[g] = A[g] * hs_.origin + targets.groups[g].col(3) - hs_.origin;
-        for (int k = 0; k < 9; ++k) maps[size_t(12 * g + k)] = A[g](k / 3, k % 3);
-        for (int k = 0; k < 3; ++k) maps[size_t(12 * g + 9 + k)] = b[g][k];
+        for (int k = 0; k < 9; ++k) maps[size_t(12 * g + k)] = gm.A[g](k / 3, k % 3);
+        for (int k = 0; k < 3; ++k) maps[size_t(12 * g + 9 + k)] = gm.b[g][k];
       }
       if (G > 0)
         LARAP_CUDA_CHECK(cudaMemcpyAsync(maps_.get(), maps.data(), sizeof(double) * maps.size(),
                                          cudaMemcpyHostToDevice, stream_));
       cuda::launch_group_rhs(sys_, entries_, maps_.get(), h_.get(), hd_.get(), stream_);
       LARAP_CUDA_CHECK(cudaGetLastError());
-      K_.assign(size_t(hs_.num_components), 0.0);
-      for (const auto& mo : hs_.moments) {
-        const Eigen::Matrix3d& Ag = A[size_t(mo.group)];
-        const Eigen::Vector3d& bg = b[size_t(mo.group)];
-        K_[size_t(mo.component)] +=
-            (Ag * mo.s2 * Ag.transpose()).trace() + 2.0 * bg.dot(Ag * mo.s1) + mo.s0 * bg.squaredNorm();
-      }
+      group_constants(hs_, gm, K_);
     }
     K_total_ = 0.0;
     for (double k : K_) K_total_ += k;

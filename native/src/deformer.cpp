@@ -226,8 +226,16 @@ void Deformer::set_weights(WeightKind kind) {
 void Deformer::set_gamma(double gamma) {
   Impl& d = *impl_;
   check_gamma(gamma);
+  const double previous = d.gamma;
   d.gamma = gamma;
-  if (d.handles_set) d.prepare_handles();
+  if (!d.handles_set) return;
+  try {
+    d.prepare_handles();
+  } catch (...) {  // the Deformer stays usable with the gamma it had
+    d.gamma = previous;
+    d.prepare_handles();
+    throw;
+  }
 }
 
 void Deformer::reset() {

@@ -139,13 +139,9 @@ void handle_rhs(const HandleSystem& hs, const HandleTargets& targets, RowMatrixX
     return;
   }
   if (!targets.groups) throw StateError("handle targets: neither rows nor group maps");
-  const int64_t G = hs.num_groups();
-  std::vector<Eigen::Matrix3d> A(static_cast<size_t>(G));
-  std::vector<Eigen::Vector3d> b(static_cast<size_t>(G));
-  for (int64_t g = 0; g < G; ++g) {
-    A[g] = targets.groups[g].leftCols<3>();
-    b[g] = A[g] * hs.origin + targets.groups[g].col(3) - hs.origin;
-  }
+  const GroupMaps m = group_maps(hs, targets.groups);
+  const auto& A = m.A;
+  const auto& b = m.b;
   parallel_for(nn, [&](int64_t i) {
     Eigen::Vector3d h = Eigen::Vector3d::Zero();
     for (int32_t k = hs.node_offsets[i]; k < hs.node_offsets[i + 1]; ++k) {
@@ -155,9 +151,26 @@ void handle_rhs(const HandleSystem& hs, const HandleTargets& targets, RowMatrixX
     }
     H.row(i) = h.transpose();
   }, 2048);
+  group_constants(hs, m, K);
+}
+
+GroupMaps group_maps(const HandleSystem& hs, const Affine34* maps) {
+  const int64_t G = hs.num_groups();
+  GroupMaps m;
+  m.A.resize(static_cast<size_t>(G));
+  m.b.resize(static_cast<size_t>(G));
+  for (int64_t g = 0; g < G; ++g) {
+    m.A[g] = maps[g].leftCols<3>();
+    m.b[g] = m.A[g] * hs.origin + maps[g].col(3) - hs.origin;
+  }
+  return m;
+}
+
+void group_constants(const HandleSystem& hs, const GroupMaps& maps, std::vector<double>& K) {
+  K.assign(size_t(hs.num_components), 0.0);
   for (const auto& mo : hs.moments) {
-    const Eigen::Matrix3d& Ag = A[mo.group];
-    const Eigen::Vector3d& bg = b[mo.group];
+    const Eigen::Matrix3d& Ag = maps.A[mo.group];
+    const Eigen::Vector3d& bg = maps.b[mo.group];
     K[mo.component] += (Ag * mo.s2 * Ag.transpose()).trace() + 2.0 * bg.dot(Ag * mo.s1) + mo.s0 * bg.squaredNorm();
   }
 }

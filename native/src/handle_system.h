@@ -98,6 +98,15 @@ struct HandleTargets {
 void handle_rhs(const HandleSystem& hs, const HandleTargets& targets, RowMatrixX3d& H,
                 std::vector<double>& K);
 
+// The groups' maps as the handle sums use them: A_g and b~_g = A_g origin + b_g - origin.
+struct GroupMaps {
+  std::vector<Eigen::Matrix3d> A;
+  std::vector<Eigen::Vector3d> b;
+};
+GroupMaps group_maps(const HandleSystem& hs, const Affine34* maps);
+// K~ per lattice component of the group maps, from the groups' moments: O(groups x components).
+void group_constants(const HandleSystem& hs, const GroupMaps& maps, std::vector<double>& K);
+
 // M = B^T diag(alpha) B (#N by #N).
 Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_nodes);
 

@@ -35,21 +35,4 @@ Eigen::Matrix3d best_rotation_fast(const Eigen::Matrix3d& S) {
   return best_rotation(S);
 }
 
-double rigid_fit(const RowMatrixX3d& from, const RowMatrixX3d& to, Eigen::Matrix3d& R,
-                 Eigen::Vector3d& t) {
-  const int64_t m = from.rows();
-  R.setIdentity();
-  t.setZero();
-  if (m == 0) return 0.0;
-  const Eigen::RowVector3d cf = from.colwise().mean(), ct = to.colwise().mean();
-  const RowMatrixX3d P = from.rowwise() - cf, Q = to.rowwise() - ct;
-  const Eigen::Matrix3d S = Q.transpose() * P, C = P.transpose() * P;
-  Eigen::JacobiSVD<Eigen::Matrix3d> spread(C);
-  const Eigen::Vector3d s = spread.singularValues();
-  if (m >= 3 && s[1] > 1e-10 * s[0] && s[0] > 0.0) R = best_rotation(S);
-  t = ct.transpose() - R * cf.transpose();
-  // R p + t - q = R (p - cf) - (q - ct)
-  return (P * R.transpose() - Q).squaredNorm();
-}
-
 }  // namespace larap

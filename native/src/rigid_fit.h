@@ -1,9 +1,7 @@
-// Rotation and rigid-motion fits (host, double): the CPU backend's per-node rotation and the
-// rigid fit of the handles that starts a pose (deformer.cpp). The device's float rotation fit is
-// native/cuda/rotation.cuh.
+// Rotation fits (host, double): the CPU backend's per-node rotation and the rotation of the
+// per-component rigid fit that starts a pose (warm_start.cpp, from moments). The device's float
+// rotation fit is native/cuda/rotation.cuh.
 #pragma once
-#include <larap/mesh.h>
-
 #include <Eigen/Core>
 
 namespace larap {
@@ -16,11 +14,5 @@ Eigen::Matrix3d best_rotation(const Eigen::Matrix3d& S);
 // The same rotation, faster: closed-form polar decomposition for well-conditioned S without
 // reflection (the common case), the SVD above otherwise.
 Eigen::Matrix3d best_rotation_fast(const Eigen::Matrix3d& S);
-
-// Best rigid motion x -> R x + t taking rows of `from` to rows of `to` (least squares).
-// When the points are (nearly) collinear the rotation is not determined: R = I, t = mean offset.
-// Returns the residual sum of squares after the motion.
-double rigid_fit(const RowMatrixX3d& from, const RowMatrixX3d& to, Eigen::Matrix3d& R,
-                 Eigen::Vector3d& t);
 
 }  // namespace larap

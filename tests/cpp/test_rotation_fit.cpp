@@ -2,13 +2,16 @@
 // (native/cuda/rotation.cuh, Horn's quaternion method, compiled here for the host).
 // Run: ctest --test-dir build -R RotationFit   (or build/larap_tests --gtest_filter='RotationFit*')
 #include <gtest/gtest.h>
+#include <larap/mesh.h>
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
 #include <random>
+#include <vector>
 
 #include "rigid_fit.h"
 #include "rotation.cuh"
+#include "warm_start.h"
 
 namespace {
 
@@ -133,19 +136,56 @@ TEST(RotationFit, ScaleInvariantAndFinite) {
   }
 }
 
-TEST(RotationFit, RigidFitRecoversAMotion) {
+// The warm start's rigid fit works on weighted moments of the handle rows (warm_start.h): built
+// from points, it recovers a rigid motion exactly, and collinear points give a translation only.
+larap::ComponentMoments moments_of(const larap::RowMatrixX3d& p, const larap::RowMatrixX3d& t,
+                                   const std::vector<double>& w) {
+  larap::ComponentMoments m;
+  for (int j = 0; j < p.rows(); ++j) {
+    const Eigen::Vector3d pj = p.row(j).transpose(), tj = t.row(j).transpose();
+    m.w += w[j];
+    m.p += w[j] * pj;
+    m.t += w[j] * tj;
+    m.pt += w[j] * pj * tj.transpose();
+    m.pp += w[j] * pj * pj.transpose();
+    m.tt += w[j] * tj.squaredNorm();
+  }
+  return m;
+}
+
+TEST(RotationFit, RigidFitFromMomentsRecoversAMotion) {
   std::mt19937 rng(6);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::uniform_real_distribution<double> u(-1.0, 1.0), pos(0.1, 2.0);
   larap::RowMatrixX3d from(20, 3);
-  for (int i = 0; i < 20; ++i) from.row(i) << u(rng), u(rng), u(rng);
+  std::vector<double> w(20);
+  for (int i = 0; i < 20; ++i) {
+    from.row(i) << u(rng), u(rng), u(rng);
+    w[i] = pos(rng);
+  }
   const Mat3 R = random_rotation(rng);
   const Eigen::Vector3d t(0.3, -2.0, 5.0);
   const larap::RowMatrixX3d to = (from * R.transpose()).rowwise() + t.transpose();
-  Mat3 Rf;
-  Eigen::Vector3d tf;
-  EXPECT_LT(larap::rigid_fit(from, to, Rf, tf), 1e-20);
-  EXPECT_LT((Rf - R).cwiseAbs().maxCoeff(), 1e-12);
-  EXPECT_LT((tf - t).cwiseAbs().maxCoeff(), 1e-12);
+  larap::ComponentMotion motion;
+  double before = 0.0;
+  const double after = larap::fit_rigid(moments_of(from, to, w), motion, before);
+  EXPECT_TRUE(motion.active);
+  EXPECT_GT(before, 1.0);
+  EXPECT_LT(after, 1e-12 * before);
+  EXPECT_LT((motion.R - R).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_LT((motion.t - t).cwiseAbs().maxCoeff(), 1e-10);
+}
+
+TEST(RotationFit, RigidFitFromMomentsOfCollinearPointsTranslatesOnly) {
+  larap::RowMatrixX3d from(5, 3), to(5, 3);
+  for (int i = 0; i < 5; ++i) {
+    from.row(i) << i, 0, 0;
+    to.row(i) << 1, i, 2;  // a turn of the line would fit; its rotation is not determined
+  }
+  larap::ComponentMotion motion;
+  double before = 0.0;
+  larap::fit_rigid(moments_of(from, to, std::vector<double>(5, 1.0)), motion, before);
+  EXPECT_TRUE(motion.R.isIdentity(0.0));
+  EXPECT_LT((motion.t - Eigen::Vector3d(1 - 2, 2, 2)).cwiseAbs().maxCoeff(), 1e-12);  // mean offset
 }
 
 }  // namespace

@@ -37,16 +37,27 @@ size_t device_bytes_in_use();
 // cudaMallocHost; throws OutOfMemory when pinned memory runs out.
 void* pinned_alloc(size_t bytes);
 
-// A device array of T that grows on demand (contents are not kept when it grows).
-template <typename T>
-class DeviceBuffer {
+// Where a growing buffer lives: device memory (with the accounting above) or page-locked host
+// memory (for asynchronous copies).
+struct DeviceMemory {
+  static void* alloc(size_t bytes) { return device_alloc(bytes); }
+  static void free(void* p, size_t bytes) { device_free(p, bytes); }
+};
+struct PinnedMemory {
+  static void* alloc(size_t bytes) { return pinned_alloc(bytes); }
+  static void free(void* p, size_t /*bytes*/) { cudaFreeHost(p); }
+};
+
+// An array of T in `Memory` that grows on demand (contents are not kept when it grows).
+template <typename T, typename Memory>
+class GrowingBuffer {
  public:
-  DeviceBuffer() = default;
-  DeviceBuffer(const DeviceBuffer&) = delete;
-  DeviceBuffer& operator=(const DeviceBuffer&) = delete;
-  ~DeviceBuffer() { release(); }
+  GrowingBuffer() = default;
+  GrowingBuffer(const GrowingBuffer&) = delete;
+  GrowingBuffer& operator=(const GrowingBuffer&) = delete;
+  ~GrowingBuffer() { release(); }
   void release() {
-    if (p_) device_free(p_, cap_ * sizeof(T));
+    if (p_) Memory::free(p_, cap_ * sizeof(T));
     p_ = nullptr;
     cap_ = 0;
   }
@@ -55,51 +66,33 @@ class DeviceBuffer {
     if (n <= cap_ && p_) return p_;
     release();
     const size_t cap = std::max<size_t>(n, 1);
-    p_ = static_cast<T*>(device_alloc(cap * sizeof(T)));
+    p_ = static_cast<T*>(Memory::alloc(cap * sizeof(T)));
     cap_ = cap;
-    return p_;
-  }
-  // reserve(n), then an asynchronous copy of src[0, n) on stream st (src must live until then).
-  T* upload(const T* src, size_t n, cudaStream_t st) {
-    reserve(n);
-    if (n) LARAP_CUDA_CHECK(cudaMemcpyAsync(p_, src, n * sizeof(T), cudaMemcpyHostToDevice, st));
     return p_;
   }
   T* get() const { return p_; }
   size_t size() const { return cap_; }
 
- private:
+ protected:
   T* p_ = nullptr;
   size_t cap_ = 0;
+};
+
+// A device array of T that grows on demand, with an upload.
+template <typename T>
+class DeviceBuffer : public GrowingBuffer<T, DeviceMemory> {
+ public:
+  // reserve(n), then an asynchronous copy of src[0, n) on stream st (src must live until then).
+  T* upload(const T* src, size_t n, cudaStream_t st) {
+    T* p = this->reserve(n);
+    if (n) LARAP_CUDA_CHECK(cudaMemcpyAsync(p, src, n * sizeof(T), cudaMemcpyHostToDevice, st));
+    return p;
+  }
 };
 
 // Page-locked host memory (for asynchronous copies), grows on demand.
 template <typename T>
-class PinnedBuffer {
- public:
-  PinnedBuffer() = default;
-  PinnedBuffer(const PinnedBuffer&) = delete;
-  PinnedBuffer& operator=(const PinnedBuffer&) = delete;
-  ~PinnedBuffer() { release(); }
-  void release() {
-    if (p_) cudaFreeHost(p_);
-    p_ = nullptr;
-    cap_ = 0;
-  }
-  T* reserve(size_t n) {
-    if (n <= cap_ && p_) return p_;
-    release();
-    const size_t cap = std::max<size_t>(n, 1);
-    p_ = static_cast<T*>(pinned_alloc(cap * sizeof(T)));
-    cap_ = cap;
-    return p_;
-  }
-  T* get() const { return p_; }
-
- private:
-  T* p_ = nullptr;
-  size_t cap_ = 0;
-};
+using PinnedBuffer = GrowingBuffer<T, PinnedMemory>;
 
 class Event {
  public:

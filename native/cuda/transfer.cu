@@ -1,4 +1,7 @@
-// Kernels of the vertex transfer (see transfer.h).
+// Kernels of the vertex transfer (see transfer.h). The two kernels share their shape (one vertex a
+// thread: rest position plus displacement) but not their maths, which is written once in
+// transfer.cuh; they stay two kernels so that each gets its own register budget (the B-spline
+// gathers 27 nodes, the trilinear 8: docs/results-gpu.md measured the kernels separately).
 #include "transfer.cuh"
 #include "transfer.h"
 

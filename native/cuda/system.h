@@ -1,6 +1,6 @@
 // The lattice system on the device: raw device pointers and sizes, passed by value to every
 // kernel (flip_flop.h, solvers.h). Internal to native/cuda; no public header includes CUDA.
-// Filled by the backend (cuda_backend.cpp) from its DeviceBuffers.
+// Filled by the backend (cuda_backend.cpp, cuda_system.cpp) from its DeviceBuffers.
 //
 // Frame: every position on the device is relative to an origin (the handle system's `origin`,
 // the rest lattice's centre), so that float positions do not lose digits to a large offset, and

@@ -1,0 +1,227 @@
+#include "voxel_grid.h"
+
+#include <larap/errors.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <limits>
+#include <string>
+
+#include "geometry.h"
+#include "parallel.h"
+
+namespace larap {
+
+int64_t physical_memory_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return int64_t(8) << 30;
+  return static_cast<int64_t>(pages) * page;
+}
+
+static std::string mib(double bytes) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.0f MiB", bytes / (1024.0 * 1024.0));
+  return buf;
+}
+
+
+Eigen::Vector3i grid_dims(const Eigen::Vector3d& extent, double h) {
+  Eigen::Vector3i d;
+  for (int a = 0; a < 3; ++a) {
+    const double n = std::floor(extent[a] / h) + 1 + 2 * kPad;
+    if (!(n < 1e9)) {
+      d[a] = std::numeric_limits<int>::max();
+    } else {
+      d[a] = static_cast<int>(n);
+    }
+  }
+  return d;
+}
+
+void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes) {
+  const double cells = double(dims.x()) * dims.y() * dims.z();
+  const double bytes = double(Lattice::estimate_bytes(dims));
+  const bool too_many = dims.maxCoeff() >= (1 << 20) || cells > 2.0e9;
+  if (too_many || bytes > double(max_bytes)) {
+    throw OutOfMemory("the lattice grid at cell size " + std::to_string(h) + " would be " +
+                      std::to_string(dims.x()) + " x " + std::to_string(dims.y()) + " x " +
+                      std::to_string(dims.z()) + " cells and need about " + mib(bytes) +
+                      " (limit " + mib(double(max_bytes)) +
+                      "); use fewer cells or a larger cell size");
+  }
+}
+
+// Marks the cells every triangle overlaps (exact separating-axis test).
+static void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris) {
+  const double h = g.h;
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
+  const int64_t nt = static_cast<int64_t>(tris.size());
+  parallel_for(nt, [&](int64_t t) {
+    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
+    const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+    Eigen::Vector3i c0, c1;
+    for (int k = 0; k < 3; ++k) {
+      c0[k] = std::max(0, int(std::floor((lo[k] - g.origin[k]) / h - 1e-7)));
+      c1[k] = std::min(g.dims[k] - 1, int(std::floor((hi[k] - g.origin[k]) / h + 1e-7)));
+    }
+    for (int z = c0.z(); z <= c1.z(); ++z)
+      for (int y = c0.y(); y <= c1.y(); ++y)
+        for (int x = c0.x(); x <= c1.x(); ++x) {
+          const int64_t id = g.index(x, y, z);
+          if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & kSurface) continue;
+          const Eigen::Vector3d center = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
+          if (geometry::triangle_box_overlap(center, half, a, b, c)) {
+            __atomic_fetch_or(&g.marks[id], uint8_t(kSurface), __ATOMIC_RELAXED);
+          }
+        }
+  }, 2048);
+}
+
+// 6-connected flood fill from the border through cells no triangle touches.
+static void mark_outside(Grid& g) {
+  std::vector<int64_t> stack;
+  auto push = [&](int x, int y, int z) {
+    const int64_t id = g.index(x, y, z);
+    if (g.marks[id] & (kSurface | kOutside)) return;
+    g.marks[id] |= kOutside;
+    stack.push_back(id);
+  };
+  const Eigen::Vector3i& d = g.dims;
+  for (int z = 0; z < d.z(); ++z)
+    for (int y = 0; y < d.y(); ++y)
+      for (int x = 0; x < d.x(); ++x)
+        if (x == 0 || y == 0 || z == 0 || x == d.x() - 1 || y == d.y() - 1 || z == d.z() - 1)
+          push(x, y, z);
+  const int64_t sy = d.x();
+  while (!stack.empty()) {
+    const int64_t id = stack.back();
+    stack.pop_back();
+    const int x = int(id % d.x()), y = int((id / sy) % d.y()), z = int(id / (sy * d.y()));
+    if (x > 0) push(x - 1, y, z);
+    if (x + 1 < d.x()) push(x + 1, y, z);
+    if (y > 0) push(x, y - 1, z);
+    if (y + 1 < d.y()) push(x, y + 1, z);
+    if (z > 0) push(x, y, z - 1);
+    if (z + 1 < d.z()) push(x, y, z + 1);
+  }
+}
+
+// Ray parity votes: for each axis, rays through the cell-centre columns; a cell collects one vote
+// per ray direction (+ and -) that crosses the surface an odd number of times before reaching it.
+static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
+                                  const std::vector<Eigen::Vector3i>& tris) {
+  std::vector<uint8_t> votes(static_cast<size_t>(g.size()), 0);
+  // Columns are offset from cell centres by a tiny irrational-looking amount so that rays through
+  // vertices and edges of grid-aligned meshes (a cube exactly on cell centres) are unlikely.
+  const double jitter_b = 0.5 + 1.3717e-6, jitter_c = 0.5 + 2.9153e-6;
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    const int nb = g.dims[b], nc = g.dims[c], na = g.dims[a];
+    std::vector<std::vector<double>> cols(static_cast<size_t>(nb) * nc);
+    for (const auto& t : tris) {
+      Eigen::Vector3d p[3];
+      for (int k = 0; k < 3; ++k) p[k] = (V.row(t[k]).transpose() - g.origin) / g.h;
+      const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - jitter_b;
+      const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - jitter_b;
+      const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - jitter_c;
+      const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - jitter_c;
+      const int jb0 = std::max(0, int(std::ceil(bmin))), jb1 = std::min(nb - 1, int(std::floor(bmax)));
+      const int jc0 = std::max(0, int(std::ceil(cmin))), jc1 = std::min(nc - 1, int(std::floor(cmax)));
+      if (jb0 > jb1 || jc0 > jc1) continue;
+      // Signed area in the (b, c) plane.
+      const double area = (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) -
+                          (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
+      if (area == 0.0) continue;  // parallel to the ray
+      for (int jc = jc0; jc <= jc1; ++jc)
+        for (int jb = jb0; jb <= jb1; ++jb) {
+          const double qb = jb + jitter_b, qc = jc + jitter_c;
+          double w[3];
+          for (int k = 0; k < 3; ++k) {
+            const Eigen::Vector3d& u = p[(k + 1) % 3];
+            const Eigen::Vector3d& v = p[(k + 2) % 3];
+            w[k] = (u[b] - qb) * (v[c] - qc) - (v[b] - qb) * (u[c] - qc);
+          }
+          const bool inside = (w[0] >= 0 && w[1] >= 0 && w[2] >= 0) ||
+                              (w[0] <= 0 && w[1] <= 0 && w[2] <= 0);
+          if (!inside) continue;
+          const double s = w[0] + w[1] + w[2];
+          const double ta = (w[0] * p[0][a] + w[1] * p[1][a] + w[2] * p[2][a]) / s;
+          cols[size_t(jc) * nb + jb].push_back(ta);
+        }
+    }
+    parallel_for(int64_t(cols.size()), [&](int64_t col) {
+      auto& xs = cols[col];
+      if (xs.empty()) return;
+      std::sort(xs.begin(), xs.end());
+      // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
+      xs.erase(std::unique(xs.begin(), xs.end(),
+                           [](double u, double v) { return std::abs(u - v) < 1e-9; }),
+               xs.end());
+      const int jb = int(col % nb), jc = int(col / nb);
+      const int total = int(xs.size());
+      int below = 0;
+      for (int k = 0; k < na; ++k) {
+        const double centre = k + 0.5;
+        while (below < total && xs[below] < centre) ++below;
+        Eigen::Vector3i cell;
+        cell[a] = k;
+        cell[b] = jb;
+        cell[c] = jc;
+        const int64_t id = g.index(cell.x(), cell.y(), cell.z());
+        votes[id] += uint8_t((below & 1) + ((total - below) & 1));
+      }
+    }, 64);
+  }
+  return votes;
+}
+
+Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
+              const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes) {
+  Grid g;
+  g.h = h;
+  g.dims = grid_dims(hi - lo, h);
+  check_memory(g.dims, h, max_bytes);
+  g.origin = lo - Eigen::Vector3d::Constant(kPad * h);
+  g.marks.assign(static_cast<size_t>(g.size()), 0);
+
+  mark_surface(g, mesh.vertices, tris);
+  const int64_t n = mesh.num_vertices();
+  g.vertex_cells.resize(static_cast<size_t>(n));
+  parallel_for(n, [&](int64_t i) {
+    const Eigen::Vector3i c = g.cell_of(mesh.vertices.row(i).transpose());
+    g.vertex_cells[i] = g.index(c.x(), c.y(), c.z());
+  }, 8192);
+  for (int64_t id : g.vertex_cells) g.marks[id] |= kVertex;
+
+  mark_outside(g);
+  const std::vector<uint8_t> votes = parity_votes(g, mesh.vertices, tris);
+  const int64_t size = g.size();
+  for (int64_t id = 0; id < size; ++id) {
+    const bool enclosed = !(g.marks[id] & (kOutside | kSurface));
+    if (enclosed || votes[id] >= 4) g.marks[id] |= kInside;
+  }
+
+  // Dilation: the 3x3x3 block around every vertex cell, so B-spline stencils are complete.
+  const Eigen::Vector3i& d = g.dims;
+  for (int z = 1; z + 1 < d.z(); ++z)
+    for (int y = 1; y + 1 < d.y(); ++y)
+      for (int x = 1; x + 1 < d.x(); ++x) {
+        if (!(g.marks[g.index(x, y, z)] & kVertex)) continue;
+        for (int dz = -1; dz <= 1; ++dz)
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) g.marks[g.index(x + dx, y + dy, z + dz)] |= kDilation;
+      }
+  return g;
+}
+
+// Cells that count towards the `cells` target: the real cells and the 3x3x3 blocks around the
+// vertices' cells (the B-spline's reach), as before the stencil shell stopped being cells, so a
+// given `cells` gives the same cell size as before (split copies count once).
+int64_t count_kept(const Grid& g) {
+  int64_t k = 0;
+  for (uint8_t m : g.marks) k += (m & (kKept | kDilation)) != 0;
+  return k;
+}
+
+}  // namespace larap

@@ -35,7 +35,7 @@ int Hierarchy::size() const { return static_cast<int>(levels_.size()); }
 Hierarchy::Hierarchy(Hierarchy&&) noexcept = default;
 Hierarchy& Hierarchy::operator=(Hierarchy&&) noexcept = default;
 
-Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels) : fine_(&fine) {
+Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels) {
   levels_.reserve(size_t(std::max(levels - 1, 0)));  // `finer` points into levels_: no reallocation
   const Lattice* finer = &fine;
   for (int k = 1; k < levels; ++k) {

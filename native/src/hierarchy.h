@@ -32,7 +32,6 @@ class Hierarchy {
   Hierarchy& operator=(Hierarchy&&) noexcept;
 
   // Up to levels - 1 coarser levels above `fine` (fewer when a level reaches a single cell).
-  // `fine` must outlive the hierarchy.
   Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels);
 
   // Number of coarse levels (0: the fine lattice alone).
@@ -53,7 +52,6 @@ class Hierarchy {
 
  private:
   struct Level;
-  const Lattice* fine_ = nullptr;
   std::vector<Level> levels_;  // levels_[k] is level k+1 (cells 2^(k+1) times larger)
 };
 

@@ -60,9 +60,14 @@ def verdicts(out, status):
             f"{pct(l)} vs {pct(s)} (ratio {l / s:.2f})" if s else f"{pct(l)} vs {pct(s)}", l <= s / 3)
     H, HS = find(q, case="hand_finger", method="larap_bspline"), find(q, case="hand_finger", method="surface_arap")
     if H:
-        add("neighbouring fingers dragged at most 1% of the hand (surface ARAP: 0%)",
+        add("neighbouring fingers dragged at most 1% of the hand (surface ARAP: 0%; palm held up to the fingers)",
             f"LARAP {pct(H.get('drag'))} of the hand's diagonal (max displacement)"
             + (f"; surface ARAP {pct(HS.get('drag'))}" if HS else ""), num(H.get("drag")) <= 0.01)
+        F, FS = (find(q, case="hand_finger_free_palm", method=m) for m in ("larap_bspline", "surface_arap"))
+        if F:
+            add("the same with a free band of palm below the fingers (it bends in every method and carries the "
+                "other fingers' roots: not a drag target)",
+                f"LARAP {pct(F.get('drag'))}" + (f"; surface ARAP {pct(FS.get('drag'))}" if FS else ""), "see table")
     else:
         add("neighbouring fingers dragged at most 1% of the hand", "not measured (hand_lowres.obj absent)", "skipped")
     D = read_csv(os.path.join(out, "dihedral.csv"))

@@ -20,6 +20,11 @@ NOT_DONE = [
 ]
 
 
+# The closed-mesh poses issue 13 names: 90° and 135° bends, a 180° twist, a limb bend, one rigid motion
+# (the finger bend's hand is open: no volume).
+ISSUE_POSES = ("bar_bend90", "bar_bend135", "bar_twist180", "bar_rigid", "armadillo_arm")
+
+
 def pct(x, digits=2):
     x = num(x)
     return "-" if math.isnan(x) else f"{100 * x:.{digits}f}%"
@@ -43,14 +48,22 @@ def verdicts(out, status):
 
     closed = [c for c in dict.fromkeys(r["case"] for r in q) if find(q, case=c, method="surface_arap")
               and find(q, case=c, method="larap_bspline") and not math.isnan(num(find(q, case=c, method="surface_arap")["volume_change"]))]
-    if closed:
+
+    def volumes(cs):
         parts, ok = [], True
-        for c in closed:
+        for c in cs:
             L, S = num(find(q, case=c, method="larap_bspline")["volume_change"]), num(find(q, case=c, method="surface_arap")["volume_change"])
             parts.append(f"{c}: {pct(L)} vs {pct(S)}")
             ok = ok and (abs(L) < abs(S) or max(abs(L), abs(S)) < 1e-4)  # both nil: a rigid motion
-        add("volume change lower than surface ARAP's in every pose (closed meshes; LARAP B-spline vs surface ARAP)",
-            "; ".join(parts), ok)
+        return "; ".join(parts), ok
+    named = [c for c in closed if c in ISSUE_POSES]
+    if named:
+        add("volume change lower than surface ARAP's in every pose the issue names (closed meshes; LARAP B-spline vs "
+            "surface ARAP)", *volumes(named))
+        others = [c for c in closed if c not in ISSUE_POSES]
+        if others:
+            text, ok = volumes(others)
+            add("the same in the report's other closed poses (not named by the issue)", text, ok)
     else:
         add("volume change lower than surface ARAP's in every pose", "not measured (no surface ARAP run)", "not measured")
     L, S = find(q, case="bar_bend90", method="larap_bspline"), find(q, case="bar_bend90", method="surface_arap")

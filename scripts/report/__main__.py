@@ -6,7 +6,8 @@
 Parts, in order: table1 (CPU), time_to_quality (CPU), gpu (only where larap.available_devices()
 has "cuda"), quality (LARAP beside surface ARAP), dihedral, speed (vs surface ARAP at ~500k
 vertices), million (a 1M-vertex pose), blender (Blender's peers and the add-on, one Blender
-process each), pictures (Workbench renders), then plots and the summary (README.md). A part that
+process each), live_preview (the add-on's live move in a window under Xvfb, preview on and
+off), pictures (Workbench renders), then plots and the summary (README.md). A part that
 fails or is skipped is recorded with its reason in status.json and in the summary; the others
 still run. Sizes: full (< 30 minutes on 2 cores), --quick (a few minutes), --tiny (the smoke
 test: seconds, no Blender, no CGAL)."""
@@ -26,7 +27,7 @@ import numpy as np
 import larap
 from larap import quality
 
-from . import api, cases, convergence, gpu, pictures, plots, quality_runs, summary, table, table1
+from . import api, cases, convergence, gpu, live_preview, pictures, plots, quality_runs, summary, table, table1
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 BLENDER_SIZES = {"full": [20_000, 100_000, 300_000], "quick": [5_000], "tiny": []}
@@ -191,6 +192,13 @@ def main():
             pictures.big_csv(out, row)
         part("million", million)
         part("blender", run_blender_peers, out, work, size, log)
+
+        def preview_part():
+            try:
+                return live_preview.run(out, work, size, log)
+            except live_preview.Unavailable as exc:
+                raise Skip(str(exc)) from None
+        part("live_preview", preview_part)
 
         def render():
             if shutil.which("blender") is None:

@@ -3,7 +3,7 @@
 
 Run (a real window; Xvfb and software OpenGL are enough):
   xvfb-run -a -s "-screen 0 1280x800x24" blender --factory-startup --python scripts/bench_preview.py -- \\
-      [--sizes 100000 1000000 4000000] [--pairs 15] [--min-pairs 5] [--budget 75] \\
+      [--sizes 100000 1000000 100000 1000000 4000000] [--pairs 15] [--min-pairs 5] [--budget 75] \\
       [--picture docs/preview-1m.png] [--out docs/results-blender.md]
 
 For each size, a closed quad tube (4 x 0.5 units, so the same lattice at every size) with two
@@ -14,7 +14,11 @@ live solve, one redraw), in alternating order (idle then move, move then idle, .
 is the median of the pairs' differences, with the 25% and 75% quantiles. Each size and mode gets
 at most --pairs pairs, fewer when they would take more than --budget seconds, never fewer than
 --min-pairs. With the preview on, both redraws of a pair draw the preview (checked: every redraw
-counts the preview's draws), so its drawing cancels out.
+counts the preview's draws), so its drawing cancels out. In software GL that drawing is also the
+noisiest part of a redraw at 1M vertices and more (llvmpipe shades the vertices on a shared
+core), so a second figure takes the preview's draw callback out of both redraws of each pair and
+adds back its lattice upload, the only thing it does differently after a move.
+Temporal anti-aliasing is switched off for this session (see step()).
 
 Each part of a move is timed as well: the depsgraph update (Blender's and LARAP's handler);
 inside LARAP's handler, the preview's blocker check and the lattice-only solve; the preview's
@@ -279,11 +283,20 @@ def measure_pairs(probes, mover, mode, showing):
                 res["%s_%s_ms" % (what, name)] = median(values)
     # Blender's own part of the redraw (the redraw minus the preview's draw callback), per pair.
     if "draw" in parts["idle"] and "draw" in parts["move"]:
-        rest_idle = [i - d for i, d in zip(idle, parts["idle"]["draw"])]
-        rest_move = [(m - u) - d for m, u, d in zip(moves, updates, parts["move"]["draw"])]
+        d_idle, d_move = parts["idle"]["draw"], parts["move"]["draw"]
+        rest_idle = [i - d for i, d in zip(idle, d_idle)]
+        rest_move = [(m - u) - d for m, u, d in zip(moves, updates, d_move)]
         res["blender_redraw_idle_ms"] = median(rest_idle)
         res["blender_redraw_move_ms"] = median(rest_move)
-        res["draw_diff_ms"] = median([b - a for a, b in zip(parts["idle"]["draw"], parts["move"]["draw"])])
+        res["draw_diff_ms"] = median([b - a for a, b in zip(d_idle, d_move)])
+        # The same difference without the preview's drawing, which is the same batch, shader and
+        # view in both redraws (in llvmpipe it is also the noisiest part: vertex shading on a
+        # shared core): what differs is the update, Blender's part of the redraw and the
+        # lattice upload (timed inside the callback, added back).
+        uploads = parts["move"].get("upload", [0.0] * len(moves))
+        if len(uploads) == len(moves):
+            q = quantiles([(m - dm) - (i - di) + up for m, dm, i, di, up in zip(moves, d_move, idle, d_idle, uploads)])
+            res["added_wo_draw_q25_ms"], res["added_wo_draw_ms"], res["added_wo_draw_q75_ms"] = q
     return res
 
 
@@ -305,20 +318,21 @@ def gl_split(probes):
     return {"draw_call_ms": median(rec.get("draw", [])), "gl_wait_ms": median(rec.get("gl_wait", []))}
 
 
-def bend_for_picture(obj):
-    """A strongly bent pose (both ends turned and raised), previewed, the view framing it."""
-    s = obj.larap
-    left, right = s.handles[0].target, s.handles[1].target
-    right.location.z += 0.9
-    right.rotation_euler.y -= 0.9
-    left.location.z += 0.9
-    left.rotation_euler.y += 0.9
-    bpy.context.view_layer.update()
+def bend_for_picture(obj, start):
+    """A strongly bent pose, previewed: the right end raised and turned up in steps from where it
+    was bound (``start``: its Empty's location), as a drag does (each step warm-starts the
+    interactive solve from the last), seen from the front."""
+    right = obj.larap.handles[1].target
+    steps = 12
+    for k in range(steps + 1):
+        right.location = (start[0] - 0.5 * k / steps, start[1], start[2] + 1.3 * k / steps)
+        right.rotation_euler = (0.0, -math.radians(75) * k / steps, 0.0)
+        bpy.context.view_layer.update()
     r3d = view3d()[1].spaces.active.region_3d
     from mathutils import Euler
     r3d.view_location = (0.0, 0.0, 0.45)
-    r3d.view_rotation = Euler((math.radians(80), 0.0, math.radians(8))).to_quaternion()
-    r3d.view_distance = 6.5
+    r3d.view_rotation = Euler((math.radians(85), 0.0, math.radians(5))).to_quaternion()
+    r3d.view_distance = 6.0
     redraw()
 
 
@@ -332,6 +346,7 @@ def bench(n, probes_box):
     probes = probes_box[0]
     s = obj.larap
     mover = Mover(s.handles[1].target)
+    start = tuple(mover.target.location)
     for mode in ("on", "off"):
         s.preview = mode == "on"
         mover.target.location.z += 0.3
@@ -347,7 +362,7 @@ def bench(n, probes_box):
             if split is not None:
                 res.update(split)
             if ARGS.picture and n == min(ARGS.sizes, key=lambda m: abs(m - 1000000)):
-                bend_for_picture(obj)
+                bend_for_picture(obj, start)
                 picture(os.path.abspath(ARGS.picture))
                 row["picture"] = ARGS.picture
         t0 = time.perf_counter()
@@ -366,17 +381,25 @@ def bench(n, probes_box):
 
 def target_lines(rows):
     """The issue's target: at 1M vertices the move adds at most 1.5x the cost at 100k plus 10 ms,
-    and under 80 ms (preview on)."""
-    small = next((r for r in rows if abs(r["vertices"] - 100000) < 5000), None)
-    big = next((r for r in rows if abs(r["vertices"] - 1000000) < 50000), None)
-    if small is None or big is None:
+    and under 80 ms (preview on); judged on both figures, each the median over the runs of that
+    size (--sizes may repeat a size, e.g. 100000 1000000 100000 1000000, so that the load of the
+    shared cores drifts over both alike)."""
+    small = [r for r in rows if abs(r["vertices"] - 100000) < 5000]
+    big = [r for r in rows if abs(r["vertices"] - 1000000) < 50000]
+    if not small or not big:
         return []
-    bound = min(1.5 * small["added_ms_on"] + 10.0, 80.0)
-    upper = big["added_q75_ms_on"]
-    return ["Target (1M: at most 1.5 x 100k + 10 ms = %.1f ms, and under 80 ms): the paired median at 1M is "
-            "%.1f ms (75%% quantile %.1f ms): %s." % (
-                1.5 * small["added_ms_on"] + 10.0, big["added_ms_on"], upper,
-                "met" if big["added_ms_on"] <= bound else "not met")]
+    out = []
+    for key, label in (("added_ms_on", "paired median"), ("added_wo_draw_ms_on", "without the preview's drawing")):
+        a = [r[key] for r in small if key in r]
+        b = [r[key] for r in big if key in r]
+        if not a or not b:
+            continue
+        bound = 1.5 * median(a) + 10.0
+        met = median(b) <= bound and median(b) < 80.0
+        out.append("Target, %s: 1M adds %.1f ms (%s); 1.5 x 100k (%.1f ms: %s) + 10 ms = %.1f ms; under 80 ms: %s."
+                   % (label, median(b), ", ".join("%.1f" % v for v in b), median(a),
+                      ", ".join("%.1f" % v for v in a), bound, "met" if met else "NOT met"))
+    return out
 
 
 def report(rows):
@@ -392,18 +415,23 @@ def report(rows):
     lines = ["", "## %s: live move in a window, GPU preview on/off (scripts/bench_preview.py)" % info["date"], "",
              "%s; Blender %s, %s; device cpu, default lattice, 2 handle groups (the tube's ends); 3D View region %s. "
              "\"Adds\" = median over alternating pairs of (move + depsgraph update with the live solve + redraw) "
-             "- (redraw with nothing moved), [25%%, 75%%] quantiles; pairs per size and mode in the pairs column."
+             "- (redraw with nothing moved), [25%%, 75%%] quantiles; pairs per size and mode in the pairs column; "
+             "\"without the preview's drawing\": the same pairs with the preview's draw callback taken out of both "
+             "redraws and its lattice upload added back (the callback draws the same batch in both)."
              % (info["machine"], info["blender"], info["gl"], rows[0].get("region", "?") if rows else "?"), "",
              "| vertices | lattice nodes | load before / after | pairs on / off | redraw, preview on / off ms "
-             "| move adds, preview on ms | move adds, preview off ms | depsgraph update, on / off ms | catch-up ms |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| move adds, preview on ms | of it without the preview's drawing ms | move adds, preview off ms "
+             "| depsgraph update, on / off ms | catch-up ms |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append("| %d | %d | %.1f / %.1f | %d / %d | %s / %s | %s [%s, %s] | %s [%s, %s] | %s / %s | %s |" % (
-            r["vertices"], r["nodes"], r["load_before"], r["load_after"], r.get("pairs_on", 0), r.get("pairs_off", 0),
-            f(r, "idle_ms_on", "%.0f"), f(r, "idle_ms_off", "%.0f"),
-            f(r, "added_ms_on"), f(r, "added_q25_ms_on"), f(r, "added_q75_ms_on"),
-            f(r, "added_ms_off"), f(r, "added_q25_ms_off"), f(r, "added_q75_ms_off"),
-            f(r, "update_ms_on"), f(r, "update_ms_off"), f(r, "catchup_ms_on", "%.0f")))
+        lines.append("| %d | %d | %.1f / %.1f | %d / %d | %s / %s | %s [%s, %s] | %s [%s, %s] | %s [%s, %s] "
+                     "| %s / %s | %s |" % (
+                         r["vertices"], r["nodes"], r["load_before"], r["load_after"], r.get("pairs_on", 0),
+                         r.get("pairs_off", 0), f(r, "idle_ms_on", "%.0f"), f(r, "idle_ms_off", "%.0f"),
+                         f(r, "added_ms_on"), f(r, "added_q25_ms_on"), f(r, "added_q75_ms_on"),
+                         f(r, "added_wo_draw_ms_on"), f(r, "added_wo_draw_q25_ms_on"), f(r, "added_wo_draw_q75_ms_on"),
+                         f(r, "added_ms_off"), f(r, "added_q25_ms_off"), f(r, "added_q75_ms_off"),
+                         f(r, "update_ms_on"), f(r, "update_ms_off"), f(r, "catchup_ms_on", "%.0f")))
     lines += ["", "The parts of a move with the preview on (medians): LARAP's depsgraph handler and in it the "
               "preview's blocker check and the lattice-only solve; the preview's draw callback in the idle and the "
               "move redraw (the move's uploads the lattice: \"upload\"); Blender's own part of the redraw (redraw "

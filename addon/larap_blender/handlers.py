@@ -123,22 +123,47 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
 
     Our own writes only tag the mesh (never a target), and live_update skips meshes whose target
     matrices did not change, so this does not recurse. Deleted objects raise ReferenceError and are
-    skipped."""
-    if live_suspended() or depsgraph is None:
+    skipped. Meshes the update changed (an edit, Shade Smooth/Flat, the catch-up's write) have
+    their faces' shading read again for the preview, here rather than at the next move."""
+    if depsgraph is None:
         return
-    updated = set()
+    updated, meshes = set(), set()
     try:
         for update in depsgraph.updates:
             try:
                 idd = update.id
                 if isinstance(idd, bpy.types.Object):
                     updated.add(idd.original.name_full)
+                elif isinstance(idd, bpy.types.Mesh):
+                    meshes.add(idd.original.as_pointer())
             except ReferenceError:
                 continue
     except ReferenceError:
         return
+    if meshes:
+        preview.meshes_changed(meshes)
+    if live_suspended():
+        return
     if updated:
         live_update(scene, updated)
+    if meshes:
+        refresh_preview_shading(scene, meshes)
+
+
+def refresh_preview_shading(scene, meshes):
+    """Read the faces' shading again now for the live meshes among ``meshes`` (pointers) that the
+    preview may draw, so the next live move reads nothing per face (preview.face_shading). Only
+    where everything else lets the preview draw (preview.blocker stops before the faces
+    otherwise: a mesh written at each move is not read again at each move). Never raises."""
+    for obj in list(scene.objects):
+        try:
+            if (obj.type != "MESH" or obj.data is None or obj.data.as_pointer() not in meshes
+                    or not obj.larap.bound or not obj.larap.live or not obj.larap.preview):
+                continue
+            if preview.shading_stale(obj) and obj.mode != "EDIT":
+                preview.blocker(obj)
+        except (ReferenceError, AttributeError, RuntimeError):
+            continue
 
 
 @persistent

@@ -26,7 +26,8 @@ the mesh instead (background mode, preview off, B-spline interactive weights, mo
 pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
 artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
 smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
-it hidden as it found it.
+it hidden as it found it. Nothing in it reads the mesh per move: the faces' shading is read once
+per change of the mesh (:func:`face_shading`, told by the depsgraph handler).
 
 Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
 contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the
@@ -46,6 +47,7 @@ _DRAW_HANDLE = globals().get("_DRAW_HANDLE")
 _SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool, "hidden": bool}: objects we hid
 _GPU = {}  # runtime id -> _GpuMesh
 _SHADER = [None, ""]  # compiled shader, error message
+_SHADING = {}  # runtime id -> [(mesh pointer, face count) or None once the mesh changed, face_shading()]
 TEX_WIDTH = 2048  # texels per row of the lattice and cell textures
 # ID property set on an object while we hide it (1, or 2 when it was selected, 3 when it was
 # hidden already): an undo step or an autosave taken meanwhile stores the hidden state with it,
@@ -93,23 +95,72 @@ def blocker(obj):
     for other in keys.key_blocks:
         if other != kb and other != keys.reference_key and not other.mute and other.value != 0.0:
             return "other shape keys are mixed in (%s)" % other.name
-    return _shading_blocker(obj.data)
+    return _shading_blocker(obj)
 
 
-def _shading_blocker(me):
+def _shading_blocker(obj):
     """The preview shades a mesh all smooth (its vertex normals) or all flat: say so where Blender
-    would shade it otherwise."""
+    would shade it otherwise. The faces' flags come from :func:`face_shading` (read once per
+    change of the mesh, not per move); the mesh-wide settings are read here (O(1))."""
+    me = obj.data
     if getattr(me, "has_custom_normals", False):
         return "custom normals"
-    smooth = np.empty(len(me.polygons), dtype=bool)
-    me.polygons.foreach_get("use_smooth", smooth)
-    if not smooth.any():
+    shading = face_shading(obj)
+    if shading == "flat":
         return ""
-    if not smooth.all():
+    if shading == "mixed":
         return "mixed flat and smooth faces"
     if getattr(me, "use_auto_smooth", False):  # Blender < 4.1: split normals at sharp edges
         return "auto smooth"
     return ""
+
+
+def _read_face_shading(me):
+    """"smooth", "flat" or "mixed": every face's smooth flag, read (one pass over the faces)."""
+    smooth = np.empty(len(me.polygons), dtype=bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    if not smooth.any():
+        return "flat"
+    return "smooth" if smooth.all() else "mixed"
+
+
+def face_shading(obj):
+    """"smooth", "flat" or "mixed": the shading of ``obj``'s faces. Reading a million faces' flags
+    costs tens of milliseconds, so it is read once and kept (``_SHADING``) until the mesh changes:
+    :func:`meshes_changed` (every depsgraph update of the mesh: Shade Smooth/Flat, leaving Edit
+    Mode, a script's update, the catch-up's own write), :func:`reset_all` (undo, redo, load), or
+    another mesh or face count on the object. A live move changes no mesh, so it reads nothing."""
+    key = obj.larap.runtime_id
+    me = obj.data
+    stamp = (me.as_pointer(), len(me.polygons))
+    entry = _SHADING.get(key)
+    if entry is None or entry[0] != stamp:
+        entry = _SHADING[key] = [stamp, _read_face_shading(me)]
+    return entry[1]
+
+
+def meshes_changed(pointers):
+    """The depsgraph reported these meshes (``Mesh.as_pointer()`` of the originals) updated: their
+    faces' shading is read again when next asked (the last answer stays for the draw meanwhile)."""
+    for entry in _SHADING.values():
+        if entry[0] is not None and entry[0][0] in pointers:
+            entry[0] = None
+
+
+def draws_smooth(obj):
+    """The shader's normals for ``obj``: its vertex normals (smooth), else its faces' (flat), as
+    its faces' shading was last read (the blocker keeps a mixed mesh from being drawn)."""
+    entry = _SHADING.get(obj.larap.runtime_id)
+    return entry is None or entry[1] != "flat"
+
+
+def shading_stale(obj):
+    """``obj``'s faces' shading is to be read again (its mesh changed since the last read)."""
+    try:
+        entry = _SHADING.get(obj.larap.runtime_id)
+    except ReferenceError:
+        return False
+    return entry is None or entry[0] is None
 
 
 def showing(obj):
@@ -182,6 +233,7 @@ def reset_all():
     """After an undo, a redo or a file load: no preview runs; every object stored hidden behind
     a preview (its ID property says so) is shown again, with its selection."""
     _SHOWN.clear()
+    _SHADING.clear()  # the restored meshes may be shaded otherwise
     for obj in bpy.data.objects:
         try:
             mark = obj.get(HIDDEN_PROP)
@@ -195,6 +247,7 @@ def forget(key):
     """Drop what we hold for a runtime id whose object is gone."""
     _SHOWN.pop(key, None)
     _GPU.pop(key, None)
+    _SHADING.pop(key, None)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -247,9 +300,6 @@ class _GpuMesh:
         tris = np.empty(len(me.loop_triangles) * 3, dtype=np.int32)
         me.loop_triangles.foreach_get("vertices", tris)
         tris = tris.reshape(-1, 3)
-        smooth = np.empty(len(me.polygons), dtype=bool)
-        me.polygons.foreach_get("use_smooth", smooth)
-        self.smooth = bool(smooth.any())
         self.arrays = {"rest": np.ascontiguousarray(rt.rest, dtype=np.float32),
                        "nrm": _vertex_normals(rt.rest, tris),
                        "cell": np.asarray(cid, dtype=np.float32),
@@ -543,7 +593,7 @@ def draw():
         values = _lighting(obj, shading)
         values["model_view"] = mv
         values["normal_matrix"] = mv.to_3x3().inverted_safe().transposed().to_4x4()
-        values["mode"] = (1.0 if g.smooth else 0.0, 1.0 if rv3d.is_perspective else 0.0, 0.0, 0.0)
+        values["mode"] = (1.0 if draws_smooth(obj) else 0.0, 1.0 if rv3d.is_perspective else 0.0, 0.0, 0.0)
         block = gpu.types.GPUUniformBuf(_view_block(values))
         shader.bind()
         shader.uniform_float("mvp", rv3d.perspective_matrix @ mw)
@@ -575,6 +625,7 @@ def unregister():
     global _DRAW_HANDLE
     reset_all()  # never leave an object hidden behind a preview
     _GPU.clear()
+    _SHADING.clear()
     if _DRAW_HANDLE is not None:
         try:
             bpy.types.SpaceView3D.draw_handler_remove(_DRAW_HANDLE, "WINDOW")

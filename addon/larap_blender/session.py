@@ -179,6 +179,11 @@ class PoseSession:
         centre = posed[idx].astype(np.float64).mean(axis=0)
         self.pivot = obj.matrix_world @ Vector(centre)
         self.overrides_key = (self.target.name_full, self.bone)
+        # What begin wrote or tagged (the catch-up, a read of the vertex groups) evaluated now and
+        # the faces' shading read at the click, if at all (preview.face_shading): the drag's
+        # steps see no mesh change and read nothing per face.
+        _evaluate_targets()
+        preview.blocker(obj)
         self.key = obj.larap.runtime_id
         _DRAGGING.add(self.key)
         self.active = True

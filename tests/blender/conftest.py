@@ -56,6 +56,15 @@ def core(addon):
     return core_module
 
 
+@pytest.fixture
+def gpu_preview(monkeypatch):
+    """The preview path as in a window (lattice-only solves, the object hidden), headless."""
+    from larap_blender import preview
+    monkeypatch.setattr(preview, "available", lambda: True)
+    preview._SHADER[:] = [None, ""]
+    return preview
+
+
 # ------------------------------------------------------------------------------------------------
 # Scene helpers
 

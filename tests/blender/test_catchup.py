@@ -71,13 +71,6 @@ def count_engine_calls(monkeypatch):
     return calls
 
 
-@pytest.fixture
-def gpu_preview(monkeypatch):
-    """The preview path as in a window (lattice-only solves, the object hidden), headless."""
-    from larap_blender import preview
-    monkeypatch.setattr(preview, "available", lambda: True)
-    preview._SHADER[:] = [None, ""]
-    return preview
 
 
 # ------------------------------------------------------------------------------------------------
@@ -533,18 +526,21 @@ def test_preview_data_is_built_before_it_shows_not_in_the_draw(core, gpu_preview
 
 def test_preview_falls_back_for_shading_it_does_not_draw(core, gpu_preview):
     """The preview shades all smooth or all flat: mixed flat and smooth faces, custom normals and
-    auto smooth make posing write the mesh instead."""
+    auto smooth make posing write the mesh instead. (The faces' flags are read again once Blender
+    evaluates the changed mesh, as it does before any handler or redraw: view_layer.update().)"""
     obj, rest, left, right, targets = bar_with_handles(core)
     obj.larap.live = True
     me = obj.data
     assert gpu_preview.blocker(obj) == ""
     me.polygons[0].use_smooth = True
+    bpy.context.view_layer.update()
     assert gpu_preview.blocker(obj) == "mixed flat and smooth faces"
     before = key_bytes(obj)
     live_move(targets, 0.5)
     assert key_bytes(obj) != before and not gpu_preview.showing(obj) and not obj.hide_get()
     for p in me.polygons:
         p.use_smooth = True
+    bpy.context.view_layer.update()
     assert gpu_preview.blocker(obj) == ""
     if hasattr(me, "use_auto_smooth"):  # Blender < 4.1
         me.use_auto_smooth = True

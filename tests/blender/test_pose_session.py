@@ -8,7 +8,6 @@ import pytest
 from mathutils import Quaternion, Vector
 
 from conftest import bar_with_handles, coords, diagonal
-from test_catchup import gpu_preview  # noqa: F401 (fixture)
 
 
 def _snapshot_target(t):

@@ -1,0 +1,146 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+# Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_preview_shading.py
+"""The preview's faces' shading (preview.face_shading): read once per change of the mesh, never
+per live move or drag step, and read again on every change Blender evaluates (Shade Smooth/Flat,
+a script's update, the catch-up's write), after undo and when the object gets another mesh.
+Headless, with the GPU part switched on (the gpu_preview fixture)."""
+import bpy
+import numpy as np
+import pytest
+
+from conftest import bar_with_handles, coords
+
+
+@pytest.fixture
+def reads(gpu_preview, monkeypatch):
+    """Counts the reads of every face's smooth flag."""
+    count = {"n": 0}
+    orig = gpu_preview._read_face_shading
+
+    def counted(me):
+        count["n"] += 1
+        return orig(me)
+    monkeypatch.setattr(gpu_preview, "_read_face_shading", counted)
+    return count
+
+
+def live_move(targets, dz):
+    targets[1].location.z += dz
+    bpy.context.view_layer.update()  # depsgraph_update_post -> live
+
+
+def shade(obj, smooth):
+    """Shade Smooth / Flat as the artist does (the operator on the selected object)."""
+    with bpy.context.temp_override(selected_editable_objects=[obj], active_object=obj, object=obj):
+        op = bpy.ops.object.shade_smooth if smooth else bpy.ops.object.shade_flat
+        assert op() == {"FINISHED"}
+
+
+def test_live_moves_read_the_faces_once(core, gpu_preview, reads):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    for k in range(5):
+        live_move(targets, 0.1)
+        assert gpu_preview.showing(obj)
+    assert reads["n"] == 1  # the first move's; none per move after it
+    assert gpu_preview.face_shading(obj) == "flat"
+
+
+def test_the_catch_up_write_is_read_again_by_its_update_not_by_the_next_move(core, gpu_preview, reads):
+    from larap_blender import catchup
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets, 0.3)
+    assert reads["n"] == 1
+    catchup.catch_up_all()  # writes the mesh: the next evaluation reports it changed
+    assert not gpu_preview.showing(obj)
+    bpy.context.view_layer.update()  # Blender evaluates the write (the timer's loop iteration)
+    assert reads["n"] == 2 and not gpu_preview.shading_stale(obj)
+    for k in range(3):
+        live_move(targets, 0.1)
+    assert reads["n"] == 2 and gpu_preview.showing(obj)
+
+
+def test_shade_smooth_and_flat_are_seen_by_the_preview(core, gpu_preview, reads):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets, 0.2)
+    assert gpu_preview.face_shading(obj) == "flat" and gpu_preview.showing(obj)
+    shade(obj, True)
+    bpy.context.view_layer.update()
+    assert gpu_preview.face_shading(obj) == "smooth" and gpu_preview.blocker(obj) == ""
+    obj.data.polygons[3].use_smooth = False  # a script's change through RNA tags the mesh
+    bpy.context.view_layer.update()
+    assert gpu_preview.blocker(obj) == "mixed flat and smooth faces"
+    before = coords(obj, "LARAP")
+    live_move(targets, 0.3)  # the preview would lie: the mesh is written instead
+    assert not gpu_preview.showing(obj) and not np.array_equal(coords(obj, "LARAP"), before)
+    shade(obj, False)
+    bpy.context.view_layer.update()
+    assert gpu_preview.face_shading(obj) == "flat" and gpu_preview.blocker(obj) == ""
+    live_move(targets, 0.1)
+    assert gpu_preview.showing(obj)
+
+
+def test_foreach_set_without_an_update_is_seen_once_blender_is_told(core, gpu_preview, reads):
+    """foreach_set bypasses Blender's update (Blender itself draws the old shading until the mesh
+    is tagged); Mesh.update() tags it, and the preview reads the faces again."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    me = obj.data
+    assert gpu_preview.face_shading(obj) == "flat"
+    me.polygons.foreach_set("use_smooth", np.ones(len(me.polygons), dtype=bool))
+    me.update()
+    bpy.context.view_layer.update()
+    assert gpu_preview.face_shading(obj) == "smooth"
+
+
+def test_drag_steps_read_no_face(core, gpu_preview, reads):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    session = core.PoseSession(obj, 1).begin()
+    at_click = reads["n"]
+    assert at_click <= 1
+    for k in range(4):
+        session.update(translation=(0.0, 0.0, 0.1 * (k + 1)))
+        assert gpu_preview.showing(obj)
+    assert reads["n"] == at_click
+    session.confirm()  # writes the mesh
+    session = core.PoseSession(obj, 1).begin()  # evaluates that write, reads the faces at the click
+    at_click = reads["n"]
+    for k in range(3):
+        session.update(translation=(0.0, 0.1 * (k + 1), 0.0))
+    assert reads["n"] == at_click
+    session.cancel()
+
+
+def test_undo_and_another_mesh_read_the_faces_again(core, gpu_preview, reads):
+    from test_safety import push, undo
+    obj, rest, left, right, targets = bar_with_handles(core)
+    assert gpu_preview.face_shading(obj) == "flat"
+    push("flat")
+    shade(obj, True)
+    bpy.context.view_layer.update()
+    assert gpu_preview.face_shading(obj) == "smooth"
+    push("smooth")
+    undo()
+    obj = bpy.data.objects["Bar"]
+    assert gpu_preview.shading_stale(obj)
+    assert gpu_preview.face_shading(obj) == "flat"
+    # Another mesh on the object (not evaluated yet): its own faces are read.
+    other = obj.data.copy()
+    other.polygons.foreach_set("use_smooth", np.ones(len(other.polygons), dtype=bool))
+    obj.data = other
+    assert gpu_preview.face_shading(obj) == "smooth"
+
+
+def test_a_draw_uses_the_shading_read_last(core, gpu_preview):
+    """The shader's smooth/flat mode comes from the faces' shading as last read (Shade Flat after
+    the per-binding data was built is drawn flat), not from the data built once per binding."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    shade(obj, True)
+    bpy.context.view_layer.update()
+    live_move(targets, 0.2)
+    assert gpu_preview.showing(obj) and gpu_preview.draws_smooth(obj)
+    shade(obj, False)
+    bpy.context.view_layer.update()
+    assert not gpu_preview.draws_smooth(obj)

@@ -12,7 +12,8 @@ import subprocess
 from . import cases, table
 
 SIZES = {"full": [100_000, 1_000_000], "quick": [100_000]}
-REPEATS = {"full": 5, "quick": 3}
+PAIRS = {"full": 12, "quick": 6}    # (idle, move) redraw pairs per size and mode, at most
+BUDGET_S = {"full": 60, "quick": 30}  # seconds of pairs per size and mode
 TIMEOUT_S = {"full": 1200, "quick": 400}
 
 
@@ -41,7 +42,8 @@ def run(out, work, size, log):
     picture = os.path.join(out, "pictures", "preview-1m.png") if size == "full" else ""
     cmd = ["xvfb-run", "-a", "-s", "-screen 0 1280x800x24", "blender", "--factory-startup", "--python",
            os.path.join(cases.REPO, "scripts", "bench_preview.py"), "--",
-           "--sizes", *map(str, SIZES[size]), "--repeats", str(REPEATS[size]), "--out", md]
+           "--sizes", *map(str, SIZES[size]), "--pairs", str(PAIRS[size]), "--budget", str(BUDGET_S[size]),
+           "--out", md]
     if picture:
         cmd += ["--picture", picture]
     log(f"live preview in a window: {', '.join(f'{n:,}' for n in SIZES[size])} vertices")

@@ -31,7 +31,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                             const std::vector<int64_t>& vertex_cells, int k) {
   CellPieces out;
   const GridIndex g{dims};
-  out.vertex_piece.assign(size_t(V.rows()), 0);
 
   // ---------------------------------------------------------------- candidates
   const SurfacePatches sp = find_surface_patches(origin, h, dims, marks, V, tris);
@@ -261,6 +260,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4);
 
   // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
+  out.vertex_piece.assign(size_t(V.rows()), 0);
   parallel_for(V.rows(), [&](int64_t vtx) {
     const int64_t cid = vertex_cells[vtx];
     const int32_t s = surf_of[cid];

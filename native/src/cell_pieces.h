@@ -49,7 +49,8 @@ struct CellPieces {
   std::vector<int64_t> cells;     // analysed cells (grid indices), ascending
   std::vector<int32_t> pieces;    // number of pieces of each analysed cell (>= 1)
   std::vector<PieceLink> links;   // every connection once (a_cell < b_cell when both analysed)
-  std::vector<int32_t> vertex_piece;  // #V piece of each vertex in its cell (0 where not analysed)
+  std::vector<int32_t> vertex_piece;  // #V piece of each vertex in its cell (0 where not
+                                      // analysed); empty when no cell is analysed
   int64_t voxels = 0;             // voxels analysed (for the record)
 };
 

@@ -226,7 +226,7 @@ Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eig
   finish(lat, slots);
   lat.vertex_cell.resize(vertex_cells.size());
   for (size_t v = 0; v < vertex_cells.size(); ++v)
-    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]] + pieces.vertex_piece[v];
+    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]] + (pieces.vertex_piece.empty() ? 0 : pieces.vertex_piece[v]);
   return lat;
 }
 
@@ -358,13 +358,10 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     }
   }
 
-  CellPieces pieces;
-  if (options.split_cells) {
+  CellPieces pieces;  // none: the plain lattice
+  if (options.split_cells)
     pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
                               grid.vertex_cells, options.split_resolution);
-  } else {
-    pieces.vertex_piece.assign(size_t(mesh.num_vertices()), 0);
-  }
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
   build_stencil_shell(lat);
   return lat;

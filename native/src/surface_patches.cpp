@@ -1,9 +1,12 @@
 #include "surface_patches.h"
 
+#include <larap/errors.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <numeric>
+#include <string>
 
 #include "cell_pieces.h"
 #include "geometry.h"
@@ -12,18 +15,7 @@
 namespace larap {
 namespace {
 
-// A vertex's cells, packed in 64 bits: per axis a, the lowest cell within 1e-7 h of it (20 bits
-// at 20 a) and whether the next cell is within 1e-7 h too (bit 60 + a). kPlain: the fast paths
-// do not apply (coordinates beyond what the packing or the exactness argument covers), so every
-// triangle through the vertex takes the plain path (cell range and overlap test per cell).
-constexpr uint64_t kPlain = uint64_t(1) << 63;
-inline int packed_lo(uint64_t p, int a) { return int((p >> (20 * a)) & 0xFFFFF); }
-inline int packed_hi(uint64_t p, int a) { return packed_lo(p, a) + int((p >> (60 + a)) & 1); }
-// Inside one cell, farther than 1e-7 h from its faces: every triangle through it overlaps that cell.
-inline bool packed_inner(uint64_t p) { return (p >> 60) == 0; }
-inline int64_t packed_cell(const GridIndex& g, uint64_t p) {
-  return g.index(packed_lo(p, 0), packed_lo(p, 1), packed_lo(p, 2));
-}
+constexpr uint32_t kNoCell = SurfacePatches::kNoCell;
 
 // Union-find over vertex ids shared by the threads: a class's root is its smallest member (links
 // go from the larger root to the smaller; path halving only points a vertex further up).
@@ -92,11 +84,11 @@ class SmallSets {
   int bits_ = 4;
 };
 
-// A surface cell overlapped by a crossing triangle; inner bit k: vertex k lies inside that cell.
+// A surface cell overlapped by a crossing triangle: 8 * cell + inner, inner bit k: vertex k of
+// the triangle lies inside that cell.
 struct Crossing {
-  int32_t cell;
+  uint32_t cell_inner;
   int32_t tri;
-  uint8_t inner;
 };
 
 }  // namespace
@@ -117,6 +109,8 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
       sp.cells.push_back(id);
     }
   const int64_t ns = int64_t(sp.cells.size());
+  if (ns >= (int64_t(1) << 28))  // the lattice could not hold them either (Lattice::build)
+    throw OutOfMemory("the lattice has too many surface cells (" + std::to_string(ns) + ")");
   sp.shares.assign(size_t(ns), 0);
   sp.several.assign(size_t(ns), 0);
   sp.crossing_offsets.assign(size_t(ns) + 1, 0);
@@ -126,26 +120,26 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   // The fast paths rest on two facts: the floor commutes with min and max (so a triangle's cell
   // range is the range of its vertices'), and a vertex more than 1e-7 h inside a cell makes the
   // overlap test pass. The second needs rounding far below 1e-7 h: coordinates within 1e6 cells
-  // of zero (beyond, every triangle takes the plain path).
+  // of zero (a vertex beyond gets no cell; a grid beyond: no vertex does).
   const double reach = 1e6 * h;
-  const bool fast = origin.cwiseAbs().maxCoeff() <= reach && dims.maxCoeff() < (1 << 20);
-  sp.vertex_cells.assign(size_t(nv), kPlain);
-  if (fast) {
+  sp.vertex_cell.assign(size_t(nv), kNoCell);
+  if (origin.cwiseAbs().maxCoeff() <= reach) {
     parallel_for(nv, [&](int64_t v) {
-      uint64_t p = 0;
+      Eigen::Vector3i c;
       for (int a = 0; a < 3; ++a) {
         const double x = V(v, a);
         if (!(std::abs(x) <= reach)) return;
-        // The same expressions as the plain path's cell range.
+        // The same expressions as the cell range of a triangle (plain_range below).
         const int lo = std::max(0, int(std::floor((x - origin[a]) / h - 1e-7)));
         const int hi = std::min(dims[a] - 1, int(std::floor((x - origin[a]) / h + 1e-7)));
-        if (hi != lo && hi != lo + 1) return;
-        p |= uint64_t(lo) << (20 * a) | uint64_t(hi - lo) << (60 + a);
+        if (lo != hi) return;
+        c[a] = lo;
       }
-      sp.vertex_cells[v] = p;
+      const int32_t s = sp.surf_of[g.index(c)];
+      if (s >= 0) sp.vertex_cell[v] = uint32_t(s);
     }, 8192);
   }
-  const std::vector<uint64_t>& packed = sp.vertex_cells;
+  const std::vector<uint32_t>& code = sp.vertex_cell;
 
   // ------------------------------------------------------------------ triangles
   // The plain path: a triangle's cell range and the overlap test per cell (the voxeliser's).
@@ -174,9 +168,8 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
     const int64_t t1 = std::min(nt, (ci + 1) * chunk);
     for (int64_t t = ci * chunk; t < t1; ++t) {
       const Eigen::Vector3i& tri = tris[t];
-      const uint64_t p[3] = {packed[tri[0]], packed[tri[1]], packed[tri[2]]};
-      if (p[0] == p[1] && p[1] == p[2] && packed_inner(p[0])) {  // inside one cell
-        if (sp.surf_of[packed_cell(g, p[0])] < 0) continue;
+      const uint32_t p[3] = {code[tri[0]], code[tri[1]], code[tri[2]]};
+      if (p[0] != kNoCell && p[0] == p[1] && p[1] == p[2]) {  // inside one cell
         for (int k = 0; k < 3; ++k)
           if (!__atomic_load_n(&in_single[tri[k]], __ATOMIC_RELAXED))
             __atomic_store_n(&in_single[tri[k]], uint8_t(1), __ATOMIC_RELAXED);
@@ -185,29 +178,29 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
         continue;
       }
       Eigen::Vector3i c0, c1;
-      const bool plain = (p[0] | p[1] | p[2]) & kPlain;
-      if (plain) {
-        plain_range(t, c0, c1);
-      } else {
-        for (int a = 0; a < 3; ++a) {
-          c0[a] = std::min({packed_lo(p[0], a), packed_lo(p[1], a), packed_lo(p[2], a)});
-          c1[a] = std::max({packed_hi(p[0], a), packed_hi(p[1], a), packed_hi(p[2], a)});
+      if (p[0] != kNoCell && p[1] != kNoCell && p[2] != kNoCell) {  // the range of the vertices' cells
+        c0 = c1 = g.coords(sp.cells[p[0]]);
+        for (int k = 1; k < 3; ++k) {
+          const Eigen::Vector3i c = g.coords(sp.cells[p[k]]);
+          c0 = c0.cwiseMin(c);
+          c1 = c1.cwiseMax(c);
         }
+      } else {
+        plain_range(t, c0, c1);
       }
       std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
       int nseen = 0;
       for (int z = c0.z(); z <= c1.z(); ++z)
         for (int y = c0.y(); y <= c1.y(); ++y)
           for (int x = c0.x(); x <= c1.x(); ++x) {
-            const int64_t id = g.index(x, y, z);
-            const int32_t s = sp.surf_of[id];
+            const int32_t s = sp.surf_of[g.index(x, y, z)];
             if (s < 0) continue;
-            uint8_t inner = 0;
+            uint32_t inner = 0;
             for (int k = 0; k < 3; ++k)
-              if (packed_inner(p[k]) && packed_cell(g, p[k]) == id) inner |= uint8_t(1u << k);
-            // One cell (plain path only) overlaps without a test, as do cells holding a vertex.
+              if (p[k] == uint32_t(s)) inner |= 1u << k;
+            // A one-cell range overlaps without a test, as does a cell holding a vertex.
             if (c0 != c1 && !inner && !overlaps(t, x, y, z)) continue;
-            out.push_back({s, int32_t(t), inner});
+            out.push_back({8 * uint32_t(s) + inner, int32_t(t)});
             // A triangle over more than 8 cells links its first 8 (its other cells see it
             // through their own overlaps with their neighbours).
             if (nseen < 8) seen[nseen++] = {s, Eigen::Vector3i(x, y, z)};
@@ -217,13 +210,15 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
           if (i == j) continue;
           const Eigen::Vector3i o = seen[j].second - seen[i].second;
           if (o.cwiseAbs().maxCoeff() > 1) continue;
-          __atomic_fetch_or(&sp.shares[seen[i].first], 1u << offset_bit(o), __ATOMIC_RELAXED);
+          const uint32_t bit = 1u << offset_bit(o);
+          if (!(__atomic_load_n(&sp.shares[seen[i].first], __ATOMIC_RELAXED) & bit))
+            __atomic_fetch_or(&sp.shares[seen[i].first], bit, __ATOMIC_RELAXED);
         }
     }
   }, 1);
   // Grouped by cell, in triangle order.
   for (const auto& f : found)
-    for (const Crossing& c : f) ++sp.crossing_offsets[size_t(c.cell) + 1];
+    for (const Crossing& c : f) ++sp.crossing_offsets[size_t(c.cell_inner / 8) + 1];
   for (int64_t s = 0; s < ns; ++s) sp.crossing_offsets[s + 1] += sp.crossing_offsets[s];
   sp.crossing.resize(size_t(sp.crossing_offsets[ns]));
   std::vector<uint8_t> crossing_inner(sp.crossing.size());
@@ -231,9 +226,9 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
     std::vector<int32_t> fill(sp.crossing_offsets.begin(), sp.crossing_offsets.end() - 1);
     for (const auto& f : found)
       for (const Crossing& c : f) {
-        const int32_t q = fill[c.cell]++;
+        const int32_t q = fill[c.cell_inner / 8]++;
         sp.crossing[q] = c.tri;
-        crossing_inner[q] = c.inner;
+        crossing_inner[q] = uint8_t(c.cell_inner % 8);
       }
   }
   found.clear();
@@ -243,13 +238,13 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   parallel_for(nv, [&](int64_t v) { __atomic_store_n(&sets.parent[v], sets.find(int32_t(v)), __ATOMIC_RELAXED); }, 8192);
   std::vector<int32_t> root_offsets(static_cast<size_t>(ns) + 1, 0), roots;
   for (int64_t v = 0; v < nv; ++v)
-    if (in_single[v] && sets.parent[v] == v) ++root_offsets[size_t(sp.surf_of[packed_cell(g, packed[v])]) + 1];
+    if (in_single[v] && sets.parent[v] == v) ++root_offsets[size_t(code[v]) + 1];
   for (int64_t s = 0; s < ns; ++s) root_offsets[s + 1] += root_offsets[s];
   roots.resize(size_t(root_offsets[ns]));
   {
     std::vector<int32_t> fill(root_offsets.begin(), root_offsets.end() - 1);
     for (int64_t v = 0; v < nv; ++v)
-      if (in_single[v] && sets.parent[v] == v) roots[size_t(fill[sp.surf_of[packed_cell(g, packed[v])]]++)] = int32_t(v);
+      if (in_single[v] && sets.parent[v] == v) roots[size_t(fill[code[v]]++)] = int32_t(v);
   }
   // Per cell: its classes and the vertices of its crossing triangles (a vertex inside the cell
   // stands for its class), joined by the crossing triangles.
@@ -267,6 +262,11 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
       return (crossing_inner[q] >> k) & 1 ? sets.parent[v] : v;
     };
     for (int32_t q = q0; q < q1; ++q) {
+      // The crossing triangles of a cell lie scattered over the triangle array.
+      if (q + 16 < q1) __builtin_prefetch(&tris[sp.crossing[q + 16]]);
+      if (q + 8 < q1)
+        for (int k = 0; k < 3; ++k)
+          if ((crossing_inner[q + 8] >> k) & 1) __builtin_prefetch(&sets.parent[tris[sp.crossing[q + 8]][k]]);
       const int32_t k0 = key(q, 0);
       local.unite(k0, key(q, 1));
       local.unite(k0, key(q, 2));
@@ -286,12 +286,11 @@ void triangles_of(const SurfacePatches& sp, const std::vector<Eigen::Vector3i>& 
   std::vector<int32_t> slot(sp.cells.size(), -1);
   for (size_t i = 0; i < which.size(); ++i) slot[size_t(which[i])] = int32_t(i);
   // Triangles inside one cell, in triangle order.
-  const std::vector<uint64_t>& packed = sp.vertex_cells;
+  const std::vector<uint32_t>& code = sp.vertex_cell;
   auto inside_slot = [&](const Eigen::Vector3i& t) {
-    const uint64_t p = packed[t[0]];
-    if (!packed_inner(p) || packed[t[1]] != p || packed[t[2]] != p) return -1;
-    const int32_t s = sp.surf_of[packed_cell(sp.grid, p)];
-    return s >= 0 ? slot[size_t(s)] : -1;
+    const uint32_t c = code[t[0]];
+    if (c == kNoCell || slot[c] < 0 || code[t[1]] != c || code[t[2]] != c) return -1;
+    return slot[c];
   };
   std::vector<int32_t> count(which.size() + 1, 0);
   std::vector<int32_t> inside;

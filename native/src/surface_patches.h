@@ -6,11 +6,11 @@
 //
 // A fine mesh has hundreds of triangles per surface cell, so this is the costly part of cell
 // splitting; it avoids per-cell triangle lists:
-// - Per vertex, once: the cells within 1e-7 h of it along each axis. A triangle's cell range is
-//   the min/max of its vertices' (the floor is monotone, so min and max commute with it), so a
-//   triangle whose three vertices lie inside one cell, away from its faces, overlaps that cell only
-//   (no overlap test, as before). The others cross a face: their cells are found once (a 2x2x2
-//   bit mask), and a cell holding one of their vertices away from its faces needs no overlap test.
+// - Per vertex, once: the cell it lies inside, farther than 1e-7 h from the cell's faces. A
+//   triangle's cell range is the min/max of its vertices' (the floor is monotone, so it commutes
+//   with min and max), so a triangle whose three vertices lie inside one cell overlaps that cell
+//   alone (no overlap test, as before). The others ("crossing", about 10% of a fine mesh's) are
+//   found once per cell they overlap; a cell holding one of their vertices needs no overlap test.
 // - Patches: the vertices of the triangles inside one cell are joined globally (a concurrent
 //   union-find whose classes each stay in one cell); a cell's own analysis then walks only its
 //   crossing triangles, over these classes and the vertices of its crossing triangles.
@@ -49,9 +49,10 @@ struct SurfacePatches {
   std::vector<uint8_t> several;    // #S its triangles form more than one patch
   // The triangles of each surface cell that are not inside it alone (CSR, ascending per cell).
   std::vector<int32_t> crossing_offsets, crossing;   // #S + 1 offsets; triangle ids
-  // Per vertex: its cells within 1e-7 h (see surface_patches.cpp); tells which triangles lie
-  // inside one cell.
-  std::vector<uint64_t> vertex_cells;
+  // Per vertex: the surface cell it lies inside, farther than 1e-7 h from the cell's faces, or
+  // kNoCell. A triangle whose three vertices have the same one lies inside that cell alone.
+  std::vector<uint32_t> vertex_cell;
+  static constexpr uint32_t kNoCell = 0xFFFFFFFFu;
 };
 
 // Grid: cells of size h from `origin`, `dims` per axis, kSurface marks as the voxeliser set them

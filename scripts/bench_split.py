@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+import machine_info
+
 CHILD = r'''
 import json, sys, time
 import numpy as np, larap
@@ -54,7 +56,7 @@ def main():
     p.add_argument("--other", required=True, help="checkout to compare with, built (its python/ is used)")
     a = p.parse_args()
     here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "python")
-    print("load average before: %.2f %.2f %.2f" % os.getloadavg())
+    print("machine:", machine_info.describe(), "| load average before: %.2f %.2f %.2f" % os.getloadavg())
     print("| vertices | tree | nodes | cells | handle vertices | bind s | pose update ms (5 it + transfer) |")
     print("|---|---|---|---|---|---|---|")
     for nm, nn in ((1000, 500), (1414, 707)):

@@ -260,12 +260,15 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4);
 
   // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
-  out.vertex_piece.assign(size_t(V.rows()), 0);
-  parallel_for(V.rows(), [&](int64_t vtx) {
-    const int64_t cid = vertex_cells[vtx];
-    const int32_t s = surf_of[cid];
-    if (s < 0 || block_of_surf[s] < 0) return;
-    const int64_t b = block_of_surf[s];
+  std::vector<int64_t> held;  // vertices in analysed cells, ascending
+  for (int64_t vtx = 0; vtx < V.rows(); ++vtx) {
+    const int32_t s = surf_of[vertex_cells[vtx]];
+    if (s >= 0 && block_of_surf[s] >= 0) held.push_back(vtx);
+  }
+  std::vector<int32_t> held_piece(held.size(), 0);
+  parallel_for(int64_t(held.size()), [&](int64_t i) {
+    const int64_t vtx = held[i], cid = vertex_cells[vtx];
+    const int64_t b = block_of_surf[surf_of[cid]];
     const Eigen::Vector3i X = g.coords(cid);
     const Eigen::Vector3d local = (V.row(vtx).transpose() - origin) / h - X.cast<double>();
     int c[3];
@@ -285,8 +288,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       }
       label = best >= 0 ? v[best] : 3;
     }
-    out.vertex_piece[vtx] = label - 3;
-  }, 4096);
+    held_piece[i] = label - 3;
+  }, 1024);
+  for (size_t i = 0; i < held.size(); ++i)
+    if (held_piece[i]) out.vertex_pieces.emplace_back(held[i], held_piece[i]);
 
   for (int64_t b = 0; b < nb; ++b) {
     out.cells.push_back(surf_cells[cand_surf[b]]);

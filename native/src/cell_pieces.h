@@ -25,6 +25,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace larap {
@@ -50,8 +51,9 @@ struct CellPieces {
   std::vector<int64_t> cells;     // analysed cells (grid indices), ascending
   std::vector<int32_t> pieces;    // number of pieces of each analysed cell (>= 1)
   std::vector<PieceLink> links;   // every connection once (a_cell < b_cell when both analysed)
-  std::vector<int32_t> vertex_piece;  // #V piece of each vertex in its cell (0 where not
-                                      // analysed); empty when no cell is analysed
+  // (vertex, piece in its cell) of the vertices whose piece is not 0, ascending (a vertex of an
+  // unanalysed cell is in piece 0).
+  std::vector<std::pair<int64_t, int32_t>> vertex_pieces;
   int64_t voxels = 0;             // voxels analysed (for the record)
 };
 

@@ -269,7 +269,8 @@ Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eig
   finish(lat, slots);
   lat.vertex_cell.resize(vertex_cells.size());
   for (size_t v = 0; v < vertex_cells.size(); ++v)
-    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]] + (pieces.vertex_piece.empty() ? 0 : pieces.vertex_piece[v]);
+    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]];
+  for (const auto& [v, piece] : pieces.vertex_pieces) lat.vertex_cell[size_t(v)] += piece;
   return lat;
 }
 

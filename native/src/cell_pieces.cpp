@@ -260,11 +260,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4);
 
   // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
-  std::vector<int64_t> held;  // vertices in analysed cells, ascending
-  for (int64_t vtx = 0; vtx < V.rows(); ++vtx) {
+  const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells
     const int32_t s = surf_of[vertex_cells[vtx]];
-    if (s >= 0 && block_of_surf[s] >= 0) held.push_back(vtx);
-  }
+    return s >= 0 && block_of_surf[s] >= 0;
+  });
   std::vector<int32_t> held_piece(held.size(), 0);
   parallel_for(int64_t(held.size()), [&](int64_t i) {
     const int64_t vtx = held[i], cid = vertex_cells[vtx];

@@ -236,15 +236,14 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   // ------------------------------------------------------------------ patches
   // The classes' roots (their smallest members), per cell.
   parallel_for(nv, [&](int64_t v) { __atomic_store_n(&sets.parent[v], sets.find(int32_t(v)), __ATOMIC_RELAXED); }, 8192);
-  std::vector<int32_t> root_offsets(static_cast<size_t>(ns) + 1, 0), roots;
-  for (int64_t v = 0; v < nv; ++v)
-    if (in_single[v] && sets.parent[v] == v) ++root_offsets[size_t(code[v]) + 1];
+  const std::vector<int64_t> all_roots =
+      parallel_select(nv, [&](int64_t v) { return in_single[v] && sets.parent[v] == v; });
+  std::vector<int32_t> root_offsets(static_cast<size_t>(ns) + 1, 0), roots(all_roots.size());
+  for (int64_t v : all_roots) ++root_offsets[size_t(code[v]) + 1];
   for (int64_t s = 0; s < ns; ++s) root_offsets[s + 1] += root_offsets[s];
-  roots.resize(size_t(root_offsets[ns]));
   {
     std::vector<int32_t> fill(root_offsets.begin(), root_offsets.end() - 1);
-    for (int64_t v = 0; v < nv; ++v)
-      if (in_single[v] && sets.parent[v] == v) roots[size_t(fill[code[v]]++)] = int32_t(v);
+    for (int64_t v : all_roots) roots[size_t(fill[code[v]]++)] = int32_t(v);
   }
   // Per cell: its classes and the vertices of its crossing triangles (a vertex inside the cell
   // stands for its class), joined by the crossing triangles.
@@ -292,21 +291,14 @@ void triangles_of(const SurfacePatches& sp, const std::vector<Eigen::Vector3i>& 
     if (c == kNoCell || slot[c] < 0 || code[t[1]] != c || code[t[2]] != c) return -1;
     return slot[c];
   };
-  std::vector<int32_t> count(which.size() + 1, 0);
-  std::vector<int32_t> inside;
-  const int64_t nt = int64_t(tris.size());
-  for (int64_t t = 0; t < nt; ++t) {
-    const int32_t i = inside_slot(tris[t]);
-    if (i >= 0) ++count[size_t(i) + 1];
-  }
+  const std::vector<int64_t> hits =
+      parallel_select(int64_t(tris.size()), [&](int64_t t) { return inside_slot(tris[t]) >= 0; });
+  std::vector<int32_t> count(which.size() + 1, 0), inside(hits.size());
+  for (int64_t t : hits) ++count[size_t(inside_slot(tris[t])) + 1];
   for (size_t i = 0; i < which.size(); ++i) count[i + 1] += count[i];
-  inside.resize(size_t(count.back()));
   {
     std::vector<int32_t> fill(count.begin(), count.end() - 1);
-    for (int64_t t = 0; t < nt; ++t) {
-      const int32_t i = inside_slot(tris[t]);
-      if (i >= 0) inside[size_t(fill[size_t(i)]++)] = int32_t(t);
-    }
+    for (int64_t t : hits) inside[size_t(fill[size_t(inside_slot(tris[t]))]++)] = int32_t(t);
   }
   // Merged with the crossing ones (both ascending).
   offsets.assign(which.size() + 1, 0);

@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+import machine_info
+
 CHILD = r'''
 import json, sys, time
 import numpy as np, larap
@@ -54,6 +56,7 @@ def main():
     p.add_argument("--other", required=True, help="checkout to compare with, built (its python/ is used)")
     a = p.parse_args()
     here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "python")
+    print("machine:", machine_info.describe(), "| load average before: %.2f %.2f %.2f" % os.getloadavg())
     print("| vertices | tree | nodes | cells | handle vertices | bind s | pose update ms (5 it + transfer) |")
     print("|---|---|---|---|---|---|---|")
     for nm, nn in ((1000, 500), (1414, 707)):
@@ -61,7 +64,9 @@ def main():
                                    ("split off", here, "off")):
             r = run(path, [str(nm), str(nn), split])
             print(f"| {r['vertices']:,} | {label} | {r['nodes']:,} | {r['cells']:,} | "
-                  f"{r['handles']:,} ({100 * r['handle_share']:.1f}%) | {r['bind_s']:.3f} | {r['pose_ms']:.1f} |")
+                  f"{r['handles']:,} ({100 * r['handle_share']:.1f}%) | {r['bind_s']:.3f} | {r['pose_ms']:.1f} |",
+                  flush=True)
+    print("load average after: %.2f %.2f %.2f" % os.getloadavg())
 
 
 if __name__ == "__main__":

@@ -1,80 +1,16 @@
 #include "cell_pieces.h"
 
 #include <algorithm>
-#include <array>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <numeric>
 
 #include "geometry.h"
 #include "parallel.h"
+#include "surface_patches.h"
 
 namespace larap {
 namespace {
-
-struct GridIndex {
-  Eigen::Vector3i d;
-  int64_t index(int x, int y, int z) const { return x + int64_t(d.x()) * (y + int64_t(d.y()) * z); }
-  int64_t index(const Eigen::Vector3i& c) const { return index(c.x(), c.y(), c.z()); }
-  Eigen::Vector3i coords(int64_t id) const {
-    return Eigen::Vector3i(int(id % d.x()), int((id / d.x()) % d.y()), int(id / (int64_t(d.x()) * d.y())));
-  }
-  bool contains(const Eigen::Vector3i& c) const {
-    return (c.array() >= 0).all() && (c.array() < d.array()).all();
-  }
-};
-
-// Bit of the neighbour at offset o in {-1,0,1}^3 (o != 0) in a 27-bit mask.
-inline int offset_bit(const Eigen::Vector3i& o) { return (o.x() + 1) + 3 * (o.y() + 1) + 9 * (o.z() + 1); }
-
-// Union-find over vertex ids, reset per cell by an epoch stamp (one per worker thread).
-struct LocalUnionFind {
-  std::vector<int32_t> parent;
-  std::vector<uint32_t> stamp;
-  uint32_t epoch = 0;
-  void begin(size_t n) {
-    if (parent.size() < n) {
-      parent.assign(n, 0);
-      stamp.assign(n, 0);
-      epoch = 0;
-    }
-    if (++epoch == 0) {
-      std::fill(stamp.begin(), stamp.end(), 0u);
-      epoch = 1;
-    }
-  }
-  int32_t find(int32_t v) {
-    if (stamp[v] != epoch) {
-      stamp[v] = epoch;
-      parent[v] = v;
-      return v;
-    }
-    while (parent[v] != v) v = parent[v] = parent[parent[v]];
-    return v;
-  }
-  void unite(int32_t a, int32_t b) {
-    a = find(a);
-    b = find(b);
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
-  }
-};
-
-int local_components(const int32_t* tri_ids, int32_t n, const std::vector<Eigen::Vector3i>& tris,
-                     int64_t num_vertices) {
-  if (n <= 1) return n;
-  thread_local LocalUnionFind uf;
-  uf.begin(size_t(num_vertices));
-  for (int32_t k = 0; k < n; ++k) {
-    const Eigen::Vector3i& t = tris[tri_ids[k]];
-    uf.unite(t[0], t[1]);
-    uf.unite(t[0], t[2]);
-  }
-  const int32_t r0 = uf.find(tris[tri_ids[0]][0]);
-  for (int32_t k = 1; k < n; ++k)
-    if (uf.find(tris[tri_ids[k]][0]) != r0) return 2;  // more than one is all that matters
-  return 1;
-}
 
 // Small union-find over up to 8 entries.
 struct TinyUnionFind {
@@ -95,108 +31,14 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                             const std::vector<int64_t>& vertex_cells, int k) {
   CellPieces out;
   const GridIndex g{dims};
-  const int64_t ncell = int64_t(marks.size());
-  const int64_t nt = int64_t(tris.size());
-  out.vertex_piece.assign(size_t(V.rows()), 0);
-
-  // ---------------------------------------------------------------- surface cells and their triangles
-  std::vector<int32_t> surf_of(static_cast<size_t>(ncell), -1);
-  std::vector<int64_t> surf_cells;
-  for (int64_t id = 0; id < ncell; ++id)
-    if (marks[id] & kSurface) {
-      surf_of[id] = int32_t(surf_cells.size());
-      surf_cells.push_back(id);
-    }
-  const int64_t ns = int64_t(surf_cells.size());
-  if (ns == 0) return out;
-
-  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
-  auto cell_range = [&](int64_t t, Eigen::Vector3i& c0, Eigen::Vector3i& c1) {
-    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
-    const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
-    for (int q = 0; q < 3; ++q) {
-      c0[q] = std::max(0, int(std::floor((lo[q] - origin[q]) / h - 1e-7)));
-      c1[q] = std::min(dims[q] - 1, int(std::floor((hi[q] - origin[q]) / h + 1e-7)));
-    }
-  };
-  // Visits the surface cells triangle t overlaps (the lattice builder's exact test).
-  auto for_cells = [&](int64_t t, auto&& visit) {
-    Eigen::Vector3i c0, c1;
-    cell_range(t, c0, c1);
-    if (c0 == c1) {
-      const int32_t s = surf_of[g.index(c0)];
-      if (s >= 0) visit(s, c0);
-      return;
-    }
-    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
-    for (int z = c0.z(); z <= c1.z(); ++z)
-      for (int y = c0.y(); y <= c1.y(); ++y)
-        for (int x = c0.x(); x <= c1.x(); ++x) {
-          const int32_t s = surf_of[g.index(x, y, z)];
-          if (s < 0) continue;
-          const Eigen::Vector3d centre = origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
-          if (geometry::triangle_box_overlap(centre, half, a, b, c)) visit(s, Eigen::Vector3i(x, y, z));
-        }
-  };
-  // Pass 1 (parallel): a triangle inside one cell's range overlaps that cell (most triangles of
-  // a fine mesh); the others are tested cell by cell, and mark the neighbour masks.
-  std::vector<int32_t> tri_cell(static_cast<size_t>(nt), -1);  // -2: several cells
-  std::vector<std::atomic<uint32_t>> shares(static_cast<size_t>(ns));  // 27-bit masks: shares a triangle with
-  for (auto& m : shares) m.store(0, std::memory_order_relaxed);
-  parallel_for(nt, [&](int64_t t) {
-    Eigen::Vector3i c0, c1;
-    cell_range(t, c0, c1);
-    if (c0 == c1) {
-      tri_cell[t] = surf_of[g.index(c0)];
-      return;
-    }
-    tri_cell[t] = -2;
-    std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
-    int nseen = 0;
-    // A triangle over more than 8 cells links its first 8 (its other cells see it through
-    // their own overlaps with their neighbours).
-    for_cells(t, [&](int32_t sc, const Eigen::Vector3i& c) {
-      if (nseen < 8) seen[nseen++] = {sc, c};
-    });
-    for (int i = 0; i < nseen; ++i)
-      for (int j = 0; j < nseen; ++j) {
-        if (i == j) continue;
-        const Eigen::Vector3i o = seen[j].second - seen[i].second;
-        if (o.cwiseAbs().maxCoeff() > 1) continue;
-        shares[seen[i].first].fetch_or(1u << offset_bit(o), std::memory_order_relaxed);
-      }
-  }, 4096);
-  // Pass 2 (serial): the cells of the triangles over several cells, then counts and lists.
-  std::vector<int32_t> multi_off{0}, multi_cells;
-  for (int64_t t = 0; t < nt; ++t) {
-    if (tri_cell[t] != -2) continue;
-    for_cells(t, [&](int32_t sc, const Eigen::Vector3i&) { multi_cells.push_back(sc); });
-    multi_off.push_back(int32_t(multi_cells.size()));
-  }
-  std::vector<int32_t> count(static_cast<size_t>(ns) + 1, 0);
-  for (int64_t t = 0; t < nt; ++t)
-    if (tri_cell[t] >= 0) ++count[tri_cell[t] + 1];
-  for (int32_t sc : multi_cells) ++count[sc + 1];
-  for (int64_t s = 0; s < ns; ++s) count[s + 1] += count[s];
-  std::vector<int32_t> cell_tris(static_cast<size_t>(count[ns]));
-  {
-    std::vector<int32_t> fill(count.begin(), count.end() - 1);
-    size_t m = 0;
-    for (int64_t t = 0; t < nt; ++t) {
-      if (tri_cell[t] >= 0) {
-        cell_tris[size_t(fill[tri_cell[t]]++)] = int32_t(t);
-      } else if (tri_cell[t] == -2) {
-        for (int32_t q = multi_off[m]; q < multi_off[m + 1]; ++q) cell_tris[size_t(fill[multi_cells[q]]++)] = int32_t(t);
-        ++m;
-      }
-    }
-  }
 
   // ---------------------------------------------------------------- candidates
-  std::vector<uint8_t> candidate(static_cast<size_t>(ns), 0);
-  parallel_for(ns, [&](int64_t s) {
-    candidate[s] = local_components(cell_tris.data() + count[s], count[s + 1] - count[s], tris, V.rows()) > 1;
-  }, 64);
+  const SurfacePatches sp = find_surface_patches(origin, h, dims, marks, V, tris);
+  const std::vector<int32_t>& surf_of = sp.surf_of;
+  const std::vector<int64_t>& surf_cells = sp.cells;
+  const int64_t ns = int64_t(surf_cells.size());
+  if (ns == 0) return out;
+  std::vector<uint8_t> candidate = sp.several;
   // Non-candidate cells around a grid point share its node: they must connect within the block.
   auto analysed = [&](int64_t id) { return surf_of[id] >= 0 && candidate[surf_of[id]]; };
   for (bool changed = true; changed;) {
@@ -229,7 +71,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
             const bool si = surf_of[ids[i]] >= 0, sj = surf_of[ids[j]] >= 0;
             const bool face = o.cwiseAbs().sum() == 1;
             bool linked;
-            if (si && sj) linked = (shares[surf_of[ids[i]]].load(std::memory_order_relaxed) >> offset_bit(o)) & 1u;
+            if (si && sj) linked = (sp.shares[surf_of[ids[i]]] >> offset_bit(o)) & 1u;
             else if (si || sj) linked = face;
             else linked = true;  // two full cells
             if (linked) uf.unite(i, j);
@@ -268,13 +110,14 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   };
   auto vindex = [k](int i, int j, int l) { return i + int64_t(k) * (j + int64_t(k) * l); };
 
+  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate
+  triangles_of(sp, tris, cand_surf, cand_offsets, cand_tris);
   parallel_for(nb, [&](int64_t b) {
-    const int32_t s = cand_surf[b];
-    const Eigen::Vector3i X = g.coords(surf_cells[s]);
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     const Eigen::Vector3d corner = origin + h * X.cast<double>();
     uint8_t* v = vox.data() + b * k3;
-    for (int32_t q = count[s]; q < count[s + 1]; ++q) {
-      const Eigen::Vector3i& t = tris[cell_tris[q]];
+    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
+      const Eigen::Vector3i& t = tris[cand_tris[q]];
       const Eigen::Vector3d a = V.row(t[0]), bb = V.row(t[1]), c = V.row(t[2]);
       const Eigen::Vector3d lo = a.cwiseMin(bb).cwiseMin(c), hi = a.cwiseMax(bb).cwiseMax(c);
       int v0[3], v1[3];
@@ -417,11 +260,14 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4);
 
   // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
-  parallel_for(V.rows(), [&](int64_t vtx) {
-    const int64_t cid = vertex_cells[vtx];
-    const int32_t s = surf_of[cid];
-    if (s < 0 || block_of_surf[s] < 0) return;
-    const int64_t b = block_of_surf[s];
+  const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells
+    const int32_t s = surf_of[vertex_cells[vtx]];
+    return s >= 0 && block_of_surf[s] >= 0;
+  });
+  std::vector<int32_t> held_piece(held.size(), 0);
+  parallel_for(int64_t(held.size()), [&](int64_t i) {
+    const int64_t vtx = held[i], cid = vertex_cells[vtx];
+    const int64_t b = block_of_surf[surf_of[cid]];
     const Eigen::Vector3i X = g.coords(cid);
     const Eigen::Vector3d local = (V.row(vtx).transpose() - origin) / h - X.cast<double>();
     int c[3];
@@ -441,8 +287,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       }
       label = best >= 0 ? v[best] : 3;
     }
-    out.vertex_piece[vtx] = label - 3;
-  }, 4096);
+    held_piece[i] = label - 3;
+  }, 1024);
+  for (size_t i = 0; i < held.size(); ++i)
+    if (held_piece[i]) out.vertex_pieces.emplace_back(held[i], held_piece[i]);
 
   for (int64_t b = 0; b < nb; ++b) {
     out.cells.push_back(surf_cells[cand_surf[b]]);

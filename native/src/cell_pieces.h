@@ -4,7 +4,8 @@
 //
 // 1. Candidates. Only cells that may hold several pieces are analysed:
 //    - a surface cell whose overlapping triangles form more than one connected component through
-//      shared vertices (counted inside the cell: a fork's two tines joined far away are two);
+//      shared vertices (counted inside the cell: a fork's two tines joined far away are two;
+//      found by surface_patches.h);
 //    - the non-candidate kept cells around a grid point are about to share that point's node; if
 //      their surfaces do not connect within the 2x2x2 block (no triangle overlaps two of them and
 //      no inside cell joins them), the surface cells among them are analysed too. Repeated until
@@ -24,6 +25,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace larap {
@@ -49,7 +51,9 @@ struct CellPieces {
   std::vector<int64_t> cells;     // analysed cells (grid indices), ascending
   std::vector<int32_t> pieces;    // number of pieces of each analysed cell (>= 1)
   std::vector<PieceLink> links;   // every connection once (a_cell < b_cell when both analysed)
-  std::vector<int32_t> vertex_piece;  // #V piece of each vertex in its cell (0 where not analysed)
+  // (vertex, piece in its cell) of the vertices whose piece is not 0, ascending (a vertex of an
+  // unanalysed cell is in piece 0).
+  std::vector<std::pair<int64_t, int32_t>> vertex_pieces;
   int64_t voxels = 0;             // voxels analysed (for the record)
 };
 

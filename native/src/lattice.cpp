@@ -77,6 +77,13 @@ class LatticeAssembly {
   static int64_t point_index(const Lattice& lat, const Eigen::Vector3i& p) {
     return p.x() + int64_t(lat.dims.x() + 1) * (p.y() + int64_t(lat.dims.y() + 1) * p.z());
   }
+  // A ghost: a corner node used by one analysed copy alone (no face of the copy around it holds
+  // material, so no link reaches it). It arises where the 2x2x2 block rule flagged cells whose
+  // surfaces meet just outside the block (a torus's concave inner wall curving away from a cell
+  // face). A ghost joins the node of a face-adjacent copy at its point when the two copies
+  // already share the other three corners of their common face (their pieces connect within a
+  // cell of it; the ghost would only hinge them along the face), if only one such node is on offer.
+  static void share_ghost_corners(const Lattice& lat, const std::vector<uint8_t>& plain, DisjointSets& slots);
   // Every corner slot of the copies of cells not split joins the node its grid point already has
   // (the plain lattice's rule).
   static void share_points(const Lattice& lat, const std::vector<uint8_t>& plain, DisjointSets& slots) {
@@ -91,6 +98,41 @@ class LatticeAssembly {
     }
   }
 };
+
+void LatticeAssembly::share_ghost_corners(const Lattice& lat, const std::vector<uint8_t>& plain,
+                                          DisjointSets& slots) {
+  const int64_t nc = lat.num_cells();
+  std::vector<int32_t> members(static_cast<size_t>(8 * nc), 0);  // per class root
+  for (int64_t s = 0; s < 8 * nc; ++s) ++members[size_t(slots.find(int32_t(s)))];
+  std::vector<std::pair<int32_t, int32_t>> joins;
+  for (int64_t c = 0; c < nc; ++c) {
+    if (plain[c]) continue;
+    for (int q = 0; q < 8; ++q) {
+      if (members[size_t(slots.find(int32_t(8 * c + q)))] != 1) continue;
+      int32_t target = -1;
+      bool ambiguous = false;
+      for (int axis = 0; axis < 3; ++axis) {  // the three faces of c around corner q
+        const int side = (q >> axis) & 1;
+        Eigen::Vector3i y = lat.cell_coords[c];
+        y[axis] += side ? 1 : -1;
+        const int32_t first = lat.cell_at(y.x(), y.y(), y.z()), n = lat.cell_copies(y.x(), y.y(), y.z());
+        for (int32_t d = first; d >= 0 && d < first + n; ++d) {
+          int shared = 0;
+          for (int r = 0; r < 8; ++r)
+            if (r != q && ((r >> axis) & 1) == side &&
+                slots.find(int32_t(8 * c + r)) == slots.find(int32_t(8 * d + (r ^ (1 << axis)))))
+              ++shared;
+          if (shared < 3) continue;
+          const int32_t other = int32_t(8 * d + (q ^ (1 << axis)));
+          if (target < 0) target = other;
+          else if (slots.find(target) != slots.find(other)) ambiguous = true;
+        }
+      }
+      if (target >= 0 && !ambiguous) joins.emplace_back(int32_t(8 * c + q), target);
+    }
+  }
+  for (const auto& j : joins) slots.unite(j.first, j.second);
+}
 
 Lattice LatticeAssembly::start(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
                                const std::vector<int64_t>& copy_cell, const std::vector<uint8_t>& kinds) {
@@ -223,10 +265,12 @@ Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eig
       slots.unite(8 * a + q, 8 * b + (q ^ (1 << axis)));
     }
   }
+  share_ghost_corners(lat, plain, slots);
   finish(lat, slots);
   lat.vertex_cell.resize(vertex_cells.size());
   for (size_t v = 0; v < vertex_cells.size(); ++v)
-    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]] + pieces.vertex_piece[v];
+    lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]];
+  for (const auto& [v, piece] : pieces.vertex_pieces) lat.vertex_cell[size_t(v)] += piece;
   return lat;
 }
 
@@ -358,13 +402,10 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     }
   }
 
-  CellPieces pieces;
-  if (options.split_cells) {
+  CellPieces pieces;  // none: the plain lattice
+  if (options.split_cells)
     pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
                               grid.vertex_cells, options.split_resolution);
-  } else {
-    pieces.vertex_piece.assign(size_t(mesh.num_vertices()), 0);
-  }
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
   build_stencil_shell(lat);
   return lat;

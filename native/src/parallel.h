@@ -3,8 +3,10 @@
 // OpenMP is the fallback where TBB is not installed. Every loop body writes only its own
 // outputs, so results do not depend on the schedule or the number of threads.
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <utility>
+#include <vector>
 
 #ifdef LARAP_WITH_TBB
 #include <tbb/blocked_range.h>
@@ -25,6 +27,25 @@ void parallel_for(int64_t n, F&& body, int64_t grain = 512) {
 #pragma omp parallel for schedule(static)
   for (int64_t i = 0; i < n; ++i) body(i);
 #endif
+}
+
+// The indices i in [0, n) for which keep(i) holds, ascending (chunks of `chunk` scanned in
+// parallel, then joined in order).
+template <class F>
+std::vector<int64_t> parallel_select(int64_t n, F&& keep, int64_t chunk = 65536) {
+  const int64_t nchunks = (n + chunk - 1) / chunk;
+  std::vector<std::vector<int64_t>> parts(static_cast<size_t>(nchunks));
+  parallel_for(nchunks, [&](int64_t c) {
+    const int64_t end = std::min(n, (c + 1) * chunk);
+    for (int64_t i = c * chunk; i < end; ++i)
+      if (keep(i)) parts[size_t(c)].push_back(i);
+  }, 1);
+  size_t total = 0;
+  for (const auto& p : parts) total += p.size();
+  std::vector<int64_t> out;
+  out.reserve(total);
+  for (const auto& p : parts) out.insert(out.end(), p.begin(), p.end());
+  return out;
 }
 
 // Limit the engine's worker threads (0 = all cores). Process-wide.

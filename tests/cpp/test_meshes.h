@@ -1,4 +1,4 @@
-// Meshes the tests generate: boxes, bars, spheres, soups.
+// Meshes the tests generate: boxes, spheres, tori, parts put together, loose points.
 #pragma once
 #include <larap/mesh.h>
 
@@ -44,6 +44,49 @@ inline PolygonMesh sphere(const Eigen::Vector3d& centre, double r, int rings, in
   for (int i = 1; i + 1 < rings; ++i)
     for (int j = 0; j < segments; ++j) add({ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j)});
   for (int j = 0; j < segments; ++j) add({1, ring(rings - 1, j), ring(rings - 1, j + 1)});
+  return m;
+}
+
+// Torus around the z axis, all quads (the formula of larap.shapes.torus).
+inline PolygonMesh torus(double major, double minor, int n_major, int n_minor) {
+  PolygonMesh m;
+  m.vertices.resize(int64_t(n_major) * n_minor, 3);
+  for (int i = 0; i < n_major; ++i)
+    for (int j = 0; j < n_minor; ++j) {
+      const double u = 2 * M_PI * i / n_major, v = 2 * M_PI * j / n_minor, rho = major + minor * std::cos(v);
+      m.vertices.row(int64_t(i) * n_minor + j) << rho * std::cos(u), rho * std::sin(u), minor * std::sin(v);
+    }
+  m.face_offsets = {0};
+  for (int i = 0; i < n_major; ++i)
+    for (int j = 0; j < n_minor; ++j) {
+      const int i1 = (i + 1) % n_major, j1 = (j + 1) % n_minor;
+      for (int64_t v : {int64_t(i) * n_minor + j, int64_t(i1) * n_minor + j, int64_t(i1) * n_minor + j1,
+                        int64_t(i) * n_minor + j1})
+        m.face_indices.push_back(v);
+      m.face_offsets.push_back(static_cast<int64_t>(m.face_indices.size()));
+    }
+  return m;
+}
+
+// The parts as one mesh (vertex indices shifted, nothing welded).
+inline PolygonMesh concat(std::initializer_list<PolygonMesh> parts) {
+  PolygonMesh m;
+  for (const PolygonMesh& p : parts) {
+    const int64_t base = m.num_vertices();
+    m.vertices.conservativeResize(base + p.num_vertices(), 3);
+    m.vertices.bottomRows(p.num_vertices()) = p.vertices;
+    for (int64_t f = 0; f < p.num_faces(); ++f) {
+      for (int64_t k = p.face_offsets[f]; k < p.face_offsets[f + 1]; ++k) m.face_indices.push_back(p.face_indices[k] + base);
+      m.face_offsets.push_back(static_cast<int64_t>(m.face_indices.size()));
+    }
+  }
+  return m;
+}
+
+// One loose vertex (binds, has no face): fixes where a generated mesh's bounding box starts.
+inline PolygonMesh point(const Eigen::Vector3d& p) {
+  PolygonMesh m;
+  m.vertices = p.transpose();
   return m;
 }
 

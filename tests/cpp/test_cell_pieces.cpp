@@ -1,0 +1,265 @@
+// Cell splitting (cell_pieces, surface_patches, the split lattice's assembly) and the stencil
+// shell: the fast candidate search against testing every triangle against every cell, pieces of
+// generated shapes inside one cell, the plain lattice where nothing needs splitting, and the
+// shell's exact affine reproduction on a split lattice.
+// Run: cmake --build build --target larap_tests && ctest --test-dir build -R 'SurfacePatches|CellPieces|StencilShell'
+#include <gtest/gtest.h>
+#include <larap/lattice.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+#include <set>
+
+#include "cell_pieces.h"
+#include "geometry.h"
+#include "surface_patches.h"
+#include "test_meshes.h"
+#include "voxel_grid.h"
+
+using namespace larap;
+
+namespace {
+
+// --------------------------------------------------------------------- the plain reference
+// Every triangle against every cell of its range (one-cell ranges without a test, as the builder
+// does), each cell's triangles joined through their vertices.
+struct Reference {
+  std::vector<std::vector<int32_t>> tris;  // per surface cell, ascending
+  std::vector<uint32_t> shares;
+  std::vector<uint8_t> several;
+};
+
+Reference reference(const Grid& g, const SurfacePatches& sp, const RowMatrixX3d& V,
+                    const std::vector<Eigen::Vector3i>& tris) {
+  const size_t ns = sp.cells.size();
+  Reference r{std::vector<std::vector<int32_t>>(ns), std::vector<uint32_t>(ns, 0), std::vector<uint8_t>(ns, 0)};
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * g.h * (1.0 + 1e-9));
+  for (size_t t = 0; t < tris.size(); ++t) {
+    const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
+    const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+    Eigen::Vector3i c0, c1;
+    for (int q = 0; q < 3; ++q) {
+      c0[q] = std::max(0, int(std::floor((lo[q] - g.origin[q]) / g.h - 1e-7)));
+      c1[q] = std::min(g.dims[q] - 1, int(std::floor((hi[q] - g.origin[q]) / g.h + 1e-7)));
+    }
+    std::vector<std::pair<int32_t, Eigen::Vector3i>> seen;
+    for (int z = c0.z(); z <= c1.z(); ++z)
+      for (int y = c0.y(); y <= c1.y(); ++y)
+        for (int x = c0.x(); x <= c1.x(); ++x) {
+          const int32_t s = sp.surf_of[size_t(g.index(x, y, z))];
+          if (s < 0) continue;
+          const Eigen::Vector3d centre = g.origin + g.h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
+          if (c0 != c1 && !geometry::triangle_box_overlap(centre, half, a, b, c)) continue;
+          r.tris[size_t(s)].push_back(int32_t(t));
+          if (seen.size() < 8) seen.emplace_back(s, Eigen::Vector3i(x, y, z));
+        }
+    for (const auto& [si, ci] : seen)
+      for (const auto& [sj, cj] : seen) {
+        const Eigen::Vector3i o = cj - ci;
+        if (si != sj && o.cwiseAbs().maxCoeff() <= 1) r.shares[size_t(si)] |= 1u << offset_bit(o);
+      }
+  }
+  std::vector<int32_t> parent(size_t(V.rows()));
+  for (size_t s = 0; s < ns; ++s) {
+    const auto& list = r.tris[s];
+    for (int32_t t : list)
+      for (int k = 0; k < 3; ++k) parent[size_t(tris[t][k])] = tris[t][k];
+    auto find = [&](int32_t x) {
+      while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
+      return x;
+    };
+    for (int32_t t : list) {
+      parent[size_t(find(tris[t][1]))] = find(tris[t][0]);
+      parent[size_t(find(tris[t][2]))] = find(tris[t][0]);
+    }
+    std::set<int32_t> roots;
+    for (int32_t t : list) roots.insert(find(tris[t][0]));
+    r.several[s] = roots.size() > 1;
+  }
+  return r;
+}
+
+// Runs the fast search and the reference on `mesh` at cell size h; returns the candidates found.
+int64_t expect_same_patches(const PolygonMesh& mesh, double h) {
+  const std::vector<Eigen::Vector3i> tris = triangulate(mesh);
+  const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
+  const Eigen::Vector3d hi = mesh.vertices.colwise().maxCoeff().transpose();
+  const Grid g = voxelize(mesh, tris, lo, hi, h, int64_t(1) << 32);
+  const SurfacePatches sp = find_surface_patches(g.origin, g.h, g.dims, g.marks, mesh.vertices, tris);
+  const Reference r = reference(g, sp, mesh.vertices, tris);
+  std::vector<int32_t> all(sp.cells.size());
+  std::iota(all.begin(), all.end(), 0);
+  std::vector<int32_t> offsets, ids;
+  triangles_of(sp, tris, all, offsets, ids);
+  int64_t several = 0, listed = 0;
+  for (size_t s = 0; s < sp.cells.size(); ++s) {
+    const std::vector<int32_t> mine(ids.begin() + offsets[s], ids.begin() + offsets[s + 1]);
+    EXPECT_EQ(mine, r.tris[s]) << "triangles of surface cell " << s;
+    EXPECT_EQ(sp.shares[s], r.shares[s]) << "neighbours of surface cell " << s;
+    EXPECT_EQ(sp.several[s], r.several[s]) << "patches of surface cell " << s;
+    several += sp.several[s];
+    listed += int64_t(mine.size());
+  }
+  EXPECT_GE(listed, int64_t(tris.size()));  // every triangle overlaps some surface cell
+  return several;
+}
+
+PolygonMesh soup_of(const PolygonMesh& m, unsigned seed) {
+  const std::vector<Eigen::Vector3i> tris = triangulate(m);
+  std::vector<size_t> order(tris.size());
+  std::iota(order.begin(), order.end(), size_t(0));
+  std::shuffle(order.begin(), order.end(), std::mt19937(seed));
+  PolygonMesh s;
+  s.vertices.resize(int64_t(3 * tris.size()), 3);
+  for (size_t k = 0; k < order.size(); ++k) {
+    for (int q = 0; q < 3; ++q) {
+      s.vertices.row(int64_t(3 * k + q)) = m.vertices.row(tris[order[k]][q]);
+      s.face_indices.push_back(int64_t(3 * k + q));
+    }
+    s.face_offsets.push_back(static_cast<int64_t>(s.face_indices.size()));
+  }
+  return s;
+}
+
+PolygonMesh random_triangles(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 3.0);
+  std::normal_distribution<double> jitter(0.0, 0.2);
+  PolygonMesh m;
+  m.vertices.resize(3 * n, 3);
+  for (int t = 0; t < n; ++t) {
+    const Eigen::Vector3d c(u(rng), u(rng), u(rng));
+    for (int q = 0; q < 3; ++q) {
+      m.vertices.row(3 * t + q) = (c + Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng))).transpose();
+      m.face_indices.push_back(3 * t + q);
+    }
+    m.face_offsets.push_back(static_cast<int64_t>(m.face_indices.size()));
+  }
+  return m;
+}
+
+// The cell size at which the default lattice of a 1M-vertex torus (1414 x 707) is built.
+constexpr double kTorusCell = 0.09474523806783858;
+
+void expect_same_lattice(const Lattice& a, const Lattice& b) {
+  EXPECT_EQ(a.cell_coords, b.cell_coords);
+  EXPECT_EQ(a.cell_nodes, b.cell_nodes);
+  EXPECT_EQ(a.node_coords, b.node_coords);
+  EXPECT_EQ(a.edges, b.edges);
+  EXPECT_EQ(a.real_nodes, b.real_nodes);
+  EXPECT_EQ(a.vertex_cell, b.vertex_cell);
+  EXPECT_EQ(a.stencil27, b.stencil27);
+  EXPECT_EQ(a.shell_ids, b.shell_ids);
+  EXPECT_EQ(a.shell_weights, b.shell_weights);
+}
+
+Lattice build(const PolygonMesh& m, double h, bool split) {
+  LatticeOptions opt;
+  opt.cell_size = h;
+  opt.split_cells = split;
+  return Lattice::build(m, opt);
+}
+
+}  // namespace
+
+// --------------------------------------------------------------------- surface patches
+TEST(SurfacePatches, SameAsEveryTriangleAgainstEveryCell) {
+  // A fine torus (about 50 triangles inside each surface cell), a coarse one at the 1M torus's
+  // cell size, and one at cells smaller than its triangles.
+  expect_same_patches(gen::torus(1.0, 0.35, 400, 200), kTorusCell);
+  const PolygonMesh torus = gen::torus(1.0, 0.35, 120, 60);
+  expect_same_patches(torus, kTorusCell);
+  expect_same_patches(torus, 0.02);
+  // Triangles far larger than a cell; vertices exactly on cell faces (a box from its corner).
+  expect_same_patches(gen::box({0, 0, 0}, {1, 1, 1}), 0.1);
+  expect_same_patches(gen::box({0, 0, 0}, {1, 1, 1}), 0.25);
+  // Soups and scattered triangles: cells with several patches.
+  EXPECT_GT(expect_same_patches(soup_of(gen::sphere({0, 0, 0}, 1.0, 16, 32), 3), 0.2), 20);
+  EXPECT_GT(expect_same_patches(random_triangles(300, 5), 0.3), 20);
+  // Far from zero (beyond a million cells): every triangle takes the plain path.
+  PolygonMesh far = gen::sphere({0, 0, 0}, 1.0, 12, 24);
+  far.vertices.col(0).array() += 3e6 * 0.2;
+  expect_same_patches(far, 0.2);
+}
+
+// --------------------------------------------------------------------- pieces of one cell
+// Two slabs 0.8 x 0.8 x 0.2, 0.1 apart, inside grid cell (3,3,3): a loose vertex at the origin
+// puts the grid's cell faces on whole numbers (cell size 1, two cells of padding).
+TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
+  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({1.1, 1.1, 1.2}, {1.9, 1.9, 1.4}),
+                                     gen::box({1.1, 1.1, 1.5}, {1.9, 1.9, 1.7})});
+  const Lattice lat = build(m, 1.0, true);
+  ASSERT_EQ(lat.cell_at(3, 3, 3), 1);  // the loose vertex's cell (2,2,2) first
+  ASSERT_EQ(lat.cell_copies(3, 3, 3), 2);
+  const auto& a = lat.cell_nodes[1];
+  const auto& b = lat.cell_nodes[2];
+  for (int32_t n : a) EXPECT_EQ(std::count(b.begin(), b.end(), n), 0);
+  EXPECT_EQ(lat.num_components, 3);
+  // Each slab's vertices bind to their own copy.
+  for (int v = 1; v <= 8; ++v) EXPECT_EQ(lat.vertex_cell[v], lat.vertex_cell[1]);
+  for (int v = 9; v <= 16; ++v) EXPECT_EQ(lat.vertex_cell[v], lat.vertex_cell[9]);
+  EXPECT_NE(lat.vertex_cell[1], lat.vertex_cell[9]);
+  // Without splitting the cell is kept once.
+  EXPECT_EQ(build(m, 1.0, false).cell_copies(3, 3, 3), 1);
+}
+
+TEST(CellPieces, UJoinedInsideTheCellIsOneCopy) {
+  // The same slabs joined by a wall at their -x end, inside the cell (separate mesh parts that
+  // overlap: a soup joint).
+  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({1.1, 1.1, 1.2}, {1.9, 1.9, 1.4}),
+                                     gen::box({1.1, 1.1, 1.5}, {1.9, 1.9, 1.7}),
+                                     gen::box({1.1, 1.1, 1.25}, {1.3, 1.9, 1.65})});
+  const Lattice lat = build(m, 1.0, true);
+  EXPECT_EQ(lat.cell_copies(3, 3, 3), 1);
+  EXPECT_EQ(lat.num_components, 2);
+}
+
+TEST(CellPieces, LoneShapesGiveThePlainLattice) {
+  const PolygonMesh box = gen::box({0, 0, 0}, {1, 1, 1});
+  expect_same_lattice(build(box, 0.1, true), build(box, 0.1, false));
+  const PolygonMesh sphere = gen::sphere({0.3, -0.2, 0.1}, 1.0, 24, 48);
+  expect_same_lattice(build(sphere, 0.15, true), build(sphere, 0.15, false));
+}
+
+TEST(CellPieces, TorusConcaveWallGetsNoGhostNodes) {
+  // At this cell size the 2x2x2 block rule analyses cells on the torus's inner wall whose
+  // surfaces meet just outside the block; their copies must still share every node.
+  const PolygonMesh torus = gen::torus(1.0, 0.35, 120, 60);
+  const Lattice split = build(torus, kTorusCell, true), plain = build(torus, kTorusCell, false);
+  expect_same_lattice(split, plain);
+}
+
+// --------------------------------------------------------------------- stencil shell
+TEST(StencilShell, ReproducesAffineMapsExactlyOnASplitLattice) {
+  // A comb: tines 0.1 cells apart joined by a base block, so copies of split cells carry shell
+  // nodes of their own.
+  std::vector<PolygonMesh> parts{gen::box({-3.0, 0.0, 0.0}, {-0.1, 3.2, 1.0})};
+  for (int t = 0; t < 3; ++t) parts.push_back(gen::box({-0.5, 1.1 * t, 0.0}, {6.0, 1.1 * t + 1.0, 1.0}));
+  const PolygonMesh comb = gen::concat({parts[0], parts[1], parts[2], parts[3]});
+  const Lattice lat = build(comb, 1.0, true);
+  int64_t split_cells = 0;
+  for (size_t c = 0; c < lat.cell_coords.size(); ++c) {
+    const Eigen::Vector3i& x = lat.cell_coords[c];
+    split_cells += lat.cell_copies(x.x(), x.y(), x.z()) > 1;
+  }
+  ASSERT_GT(split_cells, 0);
+  ASSERT_GT(lat.num_shell_nodes(), 0);
+  Eigen::Matrix3d A;
+  A << 1.2, 0.3, -0.1, 0.05, 0.8, 0.4, -0.2, 0.1, 1.1;
+  const Eigen::Vector3d t(0.5, -1.0, 2.0);
+  RowMatrixX3d P = lat.rest;
+  for (int64_t i = 0; i < lat.num_real_nodes(); ++i) P.row(i) = (A * lat.rest.row(i).transpose() + t).transpose();
+  P.bottomRows(lat.num_shell_nodes()).setConstant(1e9);  // must be overwritten
+  lat.fill_shell(P);
+  double worst = 0.0;
+  for (int64_t i = lat.num_real_nodes(); i < lat.num_nodes(); ++i)
+    worst = std::max(worst, (P.row(i).transpose() - (A * lat.rest.row(i).transpose() + t)).norm());
+  EXPECT_LT(worst, 1e-12 * 20.0);  // coordinates up to ~10, a few roundings
+  // Weights sum to one per shell node.
+  for (int64_t s = 0; s < lat.num_shell_nodes(); ++s) {
+    double sum = 0.0;
+    for (int32_t e = lat.shell_offsets[s]; e < lat.shell_offsets[s + 1]; ++e) sum += lat.shell_weights[e];
+    EXPECT_NEAR(sum, 1.0, 1e-12);
+  }
+}

@@ -75,8 +75,9 @@ def verdicts(out, status):
         F, FS = (find(q, case="hand_finger_free_palm", method=m) for m in ("larap_bspline", "surface_arap"))
         if F:
             add("the same with a free band of palm below the fingers (it bends in every method and carries the "
-                "other fingers' roots: not a drag target)",
-                f"LARAP {pct(F.get('drag'))}" + (f"; surface ARAP {pct(FS.get('drag'))}" if FS else ""), "see table")
+                "other fingers' roots, so surface ARAP is not at 0% either)",
+                f"LARAP {pct(F.get('drag'))}" + (f"; surface ARAP {pct(FS.get('drag'))}" if FS else ""),
+                num(F.get("drag")) <= 0.01)
     else:
         add("neighbouring fingers dragged at most 1% of the hand", "not measured (hand_lowres.obj absent)", "skipped")
     D = read_csv(os.path.join(out, "dihedral.csv"))

@@ -83,6 +83,8 @@ class LatticeAssembly {
   // face). A ghost joins the node of a face-adjacent copy at its point when the two copies
   // already share the other three corners of their common face (their pieces connect within a
   // cell of it; the ghost would only hinge them along the face), if only one such node is on offer.
+  // Only between cells that were analysed but kept whole (one copy each): in a split cell a
+  // private corner may be all that keeps two pieces apart, and it stays private.
   static void share_ghost_corners(const Lattice& lat, const std::vector<uint8_t>& plain, DisjointSets& slots);
   // Every corner slot of the copies of cells not split joins the node its grid point already has
   // (the plain lattice's rule).
@@ -105,8 +107,9 @@ void LatticeAssembly::share_ghost_corners(const Lattice& lat, const std::vector<
   std::vector<int32_t> members(static_cast<size_t>(8 * nc), 0);  // per class root
   for (int64_t s = 0; s < 8 * nc; ++s) ++members[size_t(slots.find(int32_t(s)))];
   std::vector<std::pair<int32_t, int32_t>> joins;
+  auto whole = [&](const Eigen::Vector3i& x) { return lat.cell_copies(x.x(), x.y(), x.z()) == 1; };
   for (int64_t c = 0; c < nc; ++c) {
-    if (plain[c]) continue;
+    if (plain[c] || !whole(lat.cell_coords[c])) continue;
     for (int q = 0; q < 8; ++q) {
       if (members[size_t(slots.find(int32_t(8 * c + q)))] != 1) continue;
       int32_t target = -1;
@@ -116,6 +119,7 @@ void LatticeAssembly::share_ghost_corners(const Lattice& lat, const std::vector<
         Eigen::Vector3i y = lat.cell_coords[c];
         y[axis] += side ? 1 : -1;
         const int32_t first = lat.cell_at(y.x(), y.y(), y.z()), n = lat.cell_copies(y.x(), y.y(), y.z());
+        if (n != 1) continue;
         for (int32_t d = first; d >= 0 && d < first + n; ++d) {
           int shared = 0;
           for (int r = 0; r < 8; ++r)

@@ -35,6 +35,15 @@ struct ConcurrentSets {
       x = gx;
     }
   }
+  // The root, without path halving: for the pass that writes every vertex's root while other
+  // threads read (a halving store could put a non-root ancestor back after that write).
+  int32_t root_of(int32_t x) const {
+    for (;;) {
+      const int32_t px = __atomic_load_n(&parent[x], __ATOMIC_RELAXED);
+      if (px == x) return x;
+      x = px;
+    }
+  }
   void unite(int32_t a, int32_t b) {
     for (;;) {
       a = find(a);
@@ -240,8 +249,10 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   found.clear();
 
   // ------------------------------------------------------------------ patches
-  // The classes' roots (their smallest members), per cell.
-  parallel_for(nv, [&](int64_t v) { __atomic_store_n(&sets.parent[v], sets.find(int32_t(v)), __ATOMIC_RELAXED); }, 8192);
+  // The classes' roots (their smallest members), per cell. Every vertex's entry is written by its
+  // own iteration only (root_of never writes), so afterwards each one holds its root, whatever
+  // the threads' timing.
+  parallel_for(nv, [&](int64_t v) { __atomic_store_n(&sets.parent[v], sets.root_of(int32_t(v)), __ATOMIC_RELAXED); }, 8192);
   const std::vector<int64_t> all_roots =
       parallel_select(nv, [&](int64_t v) { return in_single[v] && sets.parent[v] == v; });
   std::vector<int32_t> root_offsets(static_cast<size_t>(ns) + 1, 0), roots(all_roots.size());

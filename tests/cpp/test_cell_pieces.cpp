@@ -13,6 +13,7 @@
 
 #include "cell_pieces.h"
 #include "geometry.h"
+#include "parallel.h"
 #include "surface_patches.h"
 #include "test_meshes.h"
 #include "voxel_grid.h"
@@ -228,6 +229,45 @@ TEST(CellPieces, TorusConcaveWallGetsNoGhostNodes) {
   const PolygonMesh torus = gen::torus(1.0, 0.35, 120, 60);
   const Lattice split = build(torus, kTorusCell, true), plain = build(torus, kTorusCell, false);
   expect_same_lattice(split, plain);
+}
+
+TEST(CellPieces, SameLatticeWhateverTheThreadCount) {
+  // The candidate search joins vertices in a union-find shared by the threads, then writes every
+  // vertex's root while others read: the lattice must not depend on the schedule. Soups of many
+  // small triangles make deep classes (many links per class), where a stale write would show.
+  const int before = num_threads();
+  const std::vector<std::pair<PolygonMesh, double>> meshes{
+      {soup_of(gen::torus(1.0, 0.35, 40, 20), 7), kTorusCell},
+      {random_triangles(150, 11), 0.3},
+      {gen::torus(1.0, 0.35, 200, 100), kTorusCell}};
+  for (const auto& [m, h] : meshes) {
+    set_num_threads(1);
+    const Lattice one = build(m, h, true);
+    for (int n : {2, 8}) {
+      set_num_threads(n);
+      expect_same_lattice(build(m, h, true), one);
+    }
+  }
+  set_num_threads(before);
+}
+
+TEST(CellPieces, SplitCopiesKeepTheirPrivateCorners) {
+  // Two slabs 0.1 apart inside one column of cells, joined by a block in the cell below: the
+  // column's cells are split in two copies each. The slabs meet only through the block, so the
+  // cells of their upper parts share no node (a corner only one copy uses stays its own).
+  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({1.1, 1.1, 1.1}, {1.9, 1.9, 2.0}),
+                                     gen::box({1.1, 1.1, 2.0}, {1.9, 1.45, 4.9}),
+                                     gen::box({1.1, 1.55, 2.0}, {1.9, 1.9, 4.9})});
+  const Lattice lat = build(m, 1.0, true);
+  std::set<int32_t> a, b;  // nodes of the cells holding each slab's vertices above z = 3
+  for (int64_t v = 0; v < m.vertices.rows(); ++v) {
+    if (m.vertices(v, 2) < 3.0 - 1e-9) continue;
+    const auto& nodes = lat.cell_nodes[size_t(lat.vertex_cell[size_t(v)])];
+    (m.vertices(v, 1) < 1.5 ? a : b).insert(nodes.begin(), nodes.end());
+  }
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  for (int32_t n : a) EXPECT_EQ(b.count(n), 0u) << "node " << n << " shared by both slabs above the block";
 }
 
 // --------------------------------------------------------------------- stencil shell

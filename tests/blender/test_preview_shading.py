@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import bar_with_handles, coords
+from conftest import activate, bar_with_handles, coords
 
 
 @pytest.fixture
@@ -144,3 +144,47 @@ def test_a_draw_uses_the_shading_read_last(core, gpu_preview):
     shade(obj, False)
     bpy.context.view_layer.update()
     assert not gpu_preview.draws_smooth(obj)
+
+
+def duplicate(obj, linked=False):
+    """Shift+D (Alt+D with ``linked``) as the artist does: the copy shares the original's runtime
+    id, bound and preview settings until it is bound or posed itself (runtime.claim_key)."""
+    activate(obj)
+    assert bpy.ops.object.duplicate(linked=linked) == {"FINISHED"}
+    dup = bpy.context.active_object
+    assert dup != obj and dup.larap.runtime_id == obj.larap.runtime_id and dup.larap.bound
+    return dup
+
+
+def test_a_duplicate_and_its_original_keep_their_own_shading(core, gpu_preview, reads):
+    """The panel asks about the duplicate (blocker) and the preview about the original: each mesh
+    is read once, and the original is drawn flat while its smooth duplicate is smooth."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    dup = duplicate(obj)
+    assert dup.data != obj.data  # Duplicate Data: Mesh (the default)
+    shade(dup, True)
+    bpy.context.view_layer.update()
+    before = reads["n"]
+    for k in range(3):
+        assert gpu_preview.blocker(obj) == ""  # a live move of the original
+        assert gpu_preview.blocker(dup) == ""  # the panel, showing the duplicate
+        assert not gpu_preview.draws_smooth(obj)  # the original's faces are flat
+        assert gpu_preview.face_shading(obj) == "flat"
+        assert gpu_preview.draws_smooth(dup)
+    assert reads["n"] - before <= 2  # one read per mesh, not one per question
+
+
+def test_linked_duplicates_share_their_mesh_shading(core, gpu_preview, reads):
+    """Alt+D: one mesh, one answer for both objects, read once and again after its change."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    dup = duplicate(obj, linked=True)
+    assert dup.data == obj.data
+    before = reads["n"]
+    for k in range(3):
+        assert gpu_preview.face_shading(obj) == "flat" and gpu_preview.face_shading(dup) == "flat"
+    assert reads["n"] - before <= 1
+    shade(dup, True)
+    bpy.context.view_layer.update()
+    assert gpu_preview.shading_stale(obj) or gpu_preview.face_shading(obj) == "smooth"
+    assert gpu_preview.face_shading(obj) == "smooth" and gpu_preview.face_shading(dup) == "smooth"
+    assert gpu_preview.draws_smooth(obj) and gpu_preview.draws_smooth(dup)

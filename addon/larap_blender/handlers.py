@@ -124,16 +124,20 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
     Our own writes only tag the mesh (never a target), and live_update skips meshes whose target
     matrices did not change, so this does not recurse. Deleted objects raise ReferenceError and are
     skipped. Meshes the update changed (an edit, Shade Smooth/Flat, the catch-up's write) have
-    their faces' shading read again for the preview, here rather than at the next move."""
+    their faces' shading read again for the preview, here rather than at the next move
+    (:func:`refresh_preview`)."""
     if depsgraph is None:
         return
-    updated, meshes = set(), set()
+    updated, meshes, objects = set(), set(), []
     try:
         for update in depsgraph.updates:
             try:
                 idd = update.id
                 if isinstance(idd, bpy.types.Object):
-                    updated.add(idd.original.name_full)
+                    obj = idd.original
+                    updated.add(obj.name_full)
+                    if obj.type == "MESH":
+                        objects.append(obj)
                 elif isinstance(idd, bpy.types.Mesh):
                     meshes.add(idd.original.as_pointer())
             except ReferenceError:
@@ -146,21 +150,25 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
         return
     if updated:
         live_update(scene, updated)
-    if meshes:
-        refresh_preview_shading(scene, meshes)
+    if objects:
+        refresh_preview(objects, meshes)
 
 
-def refresh_preview_shading(scene, meshes):
-    """Read the faces' shading again now for the live meshes among ``meshes`` (pointers) that the
-    preview may draw, so the next live move reads nothing per face (preview.face_shading). Only
-    where everything else lets the preview draw (preview.blocker stops before the faces
-    otherwise: a mesh written at each move is not read again at each move). Never raises."""
-    for obj in list(scene.objects):
+def refresh_preview(objects, meshes):
+    """The preview after an update, for the mesh objects it reported (``objects``; Blender reports
+    a changed mesh's objects with it, ``meshes`` being the pointers of the meshes it reported),
+    those bound and with the preview on; the rest of the scene is not looked at. Never raises.
+
+    * A live mesh whose faces changed has their shading read now, so the next live move reads
+      nothing per face (preview.face_shading). Only where everything else lets the preview draw
+      (the blocker stops before the faces otherwise: a mesh written at each move is not read
+      again at each move). Not in Edit Mode, whose edits reach the mesh when it is left."""
+    for obj in objects:
         try:
-            if (obj.type != "MESH" or obj.data is None or obj.data.as_pointer() not in meshes
-                    or not obj.larap.bound or not obj.larap.live or not obj.larap.preview):
+            s = obj.larap
+            if not s.bound or not s.preview or obj.data is None or obj.mode == "EDIT" or dragging(obj):
                 continue
-            if preview.shading_stale(obj) and obj.mode != "EDIT":
+            if s.live and obj.data.as_pointer() in meshes and preview.shading_stale(obj):
                 preview.blocker(obj)
         except (ReferenceError, AttributeError, RuntimeError):
             continue

@@ -188,3 +188,30 @@ def test_linked_duplicates_share_their_mesh_shading(core, gpu_preview, reads):
     assert gpu_preview.shading_stale(obj) or gpu_preview.face_shading(obj) == "smooth"
     assert gpu_preview.face_shading(obj) == "smooth" and gpu_preview.face_shading(dup) == "smooth"
     assert gpu_preview.draws_smooth(obj) and gpu_preview.draws_smooth(dup)
+
+
+def test_the_shading_refresh_walks_the_updated_objects_not_the_scene(core, gpu_preview, reads, monkeypatch):
+    """Each depsgraph update that touches a mesh (every Edit Mode step) looks only at the objects
+    it reports (Blender reports a changed mesh's objects with it), not at every object of the
+    scene. Live's own walk (its targets moved) is not this test's: it is switched off here."""
+    from types import SimpleNamespace
+    from larap_blender import handlers
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    gpu_preview.face_shading(obj)
+    gpu_preview.meshes_changed({obj.data.as_pointer()})
+    assert gpu_preview.shading_stale(obj)
+    monkeypatch.setattr(handlers, "live_update", lambda scene, names: 0)
+
+    class Scene:
+        walks = 0
+
+        @property
+        def objects(self):
+            Scene.walks += 1
+            return bpy.context.scene.objects
+
+    update = SimpleNamespace(updates=[SimpleNamespace(id=obj), SimpleNamespace(id=obj.data)])
+    handlers.larap_depsgraph_update_post(Scene(), update)
+    assert Scene.walks == 0
+    assert not gpu_preview.shading_stale(obj)  # read now, ahead of the next live move

@@ -25,9 +25,11 @@ visible (view-layer collections, Disable in Viewports, local view).
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
 pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
 artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
-smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
-it hidden as it found it. Nothing in it reads the mesh per move: the faces' shading is read once
-per change of the mesh (:func:`face_shading`, told by the depsgraph handler).
+smooth); when it gives one for an object already shown, the depsgraph handler ends the preview
+there (handlers.refresh_preview: the mesh catches up). An object the artist hid stays hidden:
+the preview never draws it, and :func:`stop` leaves it hidden as it found it. Nothing in it reads
+the mesh per move: the faces' shading is read once per change of the mesh (:func:`face_shading`,
+told by the depsgraph handler).
 
 Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
 contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the

@@ -190,6 +190,43 @@ def test_linked_duplicates_share_their_mesh_shading(core, gpu_preview, reads):
     assert gpu_preview.draws_smooth(obj) and gpu_preview.draws_smooth(dup)
 
 
+def assert_caught_up(core, obj, before):
+    """The preview ended where Blender draws the mesh again: the pose key holds the final pose of
+    the current targets (what the catch-up writes) and the object is shown again."""
+    from larap_blender.solving import key_up_to_date
+    assert not core.preview.showing(obj) and not obj.hide_get()
+    assert not core.runtime(obj).needs_catchup and key_up_to_date(obj)
+    assert not np.array_equal(coords(obj, "LARAP"), before)
+
+
+def test_mixed_shading_while_the_preview_shows_ends_it_there(core, gpu_preview, reads):
+    """A script sets a few faces flat on a smooth mesh the preview shows: the preview would draw
+    them smooth, so it ends at that update (the mesh catches up), not at the next move."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    shade(obj, True)
+    bpy.context.view_layer.update()
+    live_move(targets, 0.3)
+    assert gpu_preview.showing(obj) and gpu_preview.draws_smooth(obj) and obj.hide_get()
+    before = coords(obj, "LARAP")
+    obj.data.polygons[3].use_smooth = False
+    bpy.context.view_layer.update()
+    assert gpu_preview.blocker(obj) == "mixed flat and smooth faces"
+    assert_caught_up(core, obj, before)
+
+
+def test_a_modifier_added_while_the_preview_shows_ends_it_there(core, gpu_preview):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets, 0.3)
+    assert gpu_preview.showing(obj)
+    before = coords(obj, "LARAP")
+    obj.modifiers.new("Subdivision", "SUBSURF")
+    bpy.context.view_layer.update()
+    assert gpu_preview.blocker(obj).startswith("modifiers after the pose key")
+    assert_caught_up(core, obj, before)
+
+
 def test_the_shading_refresh_walks_the_updated_objects_not_the_scene(core, gpu_preview, reads, monkeypatch):
     """Each depsgraph update that touches a mesh (every Edit Mode step) looks only at the objects
     it reports (Blender reports a changed mesh's objects with it), not at every object of the
@@ -215,3 +252,25 @@ def test_the_shading_refresh_walks_the_updated_objects_not_the_scene(core, gpu_p
     handlers.larap_depsgraph_update_post(Scene(), update)
     assert Scene.walks == 0
     assert not gpu_preview.shading_stale(obj)  # read now, ahead of the next live move
+
+
+def test_a_change_the_preview_cannot_draw_during_a_drag_is_left_to_the_drag(core, gpu_preview):
+    """Mid-drag, the handler does not catch up (that would write behind the drag's back, and
+    cancel would no longer restore the pose key): the drag's next step writes the mesh itself,
+    and cancel still restores it exactly."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    shade(obj, True)
+    bpy.context.view_layer.update()
+    before = coords(obj, "LARAP") if obj.data.shape_keys else None
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.0, 0.2))
+    assert gpu_preview.showing(obj)
+    start = coords(obj, "LARAP")
+    obj.data.polygons[3].use_smooth = False
+    bpy.context.view_layer.update()
+    assert np.array_equal(coords(obj, "LARAP"), start)  # nothing written by the handler
+    session.update(translation=(0.0, 0.0, 0.3))
+    assert not gpu_preview.showing(obj) and not np.array_equal(coords(obj, "LARAP"), start)
+    session.cancel()
+    assert np.array_equal(coords(obj, "LARAP"), start)
+    assert before is None or np.array_equal(before, start)

@@ -131,7 +131,8 @@ def face_shading(obj):
     costs tens of milliseconds, so it is read once and kept (``_SHADING``) until the mesh changes:
     :func:`meshes_changed` (every depsgraph update of the mesh: Shade Smooth/Flat, leaving Edit
     Mode, a script's update, the catch-up's own write), :func:`reset_all` (undo, redo, load), or
-    another face count. A live move changes no mesh, so it reads nothing.
+    another face count (another mesh on the object has an entry of its own). A live move changes
+    no mesh, so it reads nothing.
 
     Kept per mesh, not per object: the answer is the mesh's alone. Objects that share one mesh
     (Alt+D) share its one answer; a duplicate with its own mesh (Shift+D) has its own, though it

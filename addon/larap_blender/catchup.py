@@ -16,6 +16,7 @@ It happens:
   thread; before LARAP's own Bake/Apply (``solving.current_pose``) and ``larap.solve``;
 * on a frame change while a render job runs (the live update writes the final pose directly);
 * when Live or the preview is turned off (their property updates);
+* when a change the preview cannot draw reaches a mesh it shows (handlers.refresh_preview);
 * after an undo/redo or a file load, for live meshes whose restored pose key was not solved for
   the restored targets (the signature stored in the object tells), so undo and reopening show
   the caught-up pose, and a file whose pose key is up to date is left exactly as it is.

@@ -8,6 +8,8 @@ the mesh data catches up once the moves pause (catchup.py); without it, the pose
 at each move (and converged once they pause). A mesh being dragged (session.py) is left to its
 drag: each drag step solves once. While a render job runs, a frame change writes the final pose
 directly. :func:`suspend_live` holds Live off while LARAP itself steps frames or writes (bake).
+A change the preview cannot draw (mixed shading, a modifier), made while it shows a mesh, ends
+the preview at the update that reports it (:func:`refresh_preview`: the mesh catches up).
 
 The other handlers keep the runtime cache and the mesh data true to the file: ``load_post``
 drops the cache, ``undo_post``/``redo_post`` make it re-validate (runtime.after_undo); both end
@@ -124,16 +126,20 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
     Our own writes only tag the mesh (never a target), and live_update skips meshes whose target
     matrices did not change, so this does not recurse. Deleted objects raise ReferenceError and are
     skipped. Meshes the update changed (an edit, Shade Smooth/Flat, the catch-up's write) have
-    their faces' shading read again for the preview, here rather than at the next move."""
+    their faces' shading read again for the preview, here rather than at the next move, and a
+    preview that can no longer draw a reported object ends here (:func:`refresh_preview`)."""
     if depsgraph is None:
         return
-    updated, meshes = set(), set()
+    updated, meshes, objects = set(), set(), []
     try:
         for update in depsgraph.updates:
             try:
                 idd = update.id
                 if isinstance(idd, bpy.types.Object):
-                    updated.add(idd.original.name_full)
+                    obj = idd.original
+                    updated.add(obj.name_full)
+                    if obj.type == "MESH":
+                        objects.append(obj)
                 elif isinstance(idd, bpy.types.Mesh):
                     meshes.add(idd.original.as_pointer())
             except ReferenceError:
@@ -146,21 +152,34 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
         return
     if updated:
         live_update(scene, updated)
-    if meshes:
-        refresh_preview_shading(scene, meshes)
+    if objects:
+        refresh_preview(objects, meshes)
 
 
-def refresh_preview_shading(scene, meshes):
-    """Read the faces' shading again now for the live meshes among ``meshes`` (pointers) that the
-    preview may draw, so the next live move reads nothing per face (preview.face_shading). Only
-    where everything else lets the preview draw (preview.blocker stops before the faces
-    otherwise: a mesh written at each move is not read again at each move). Never raises."""
-    for obj in list(scene.objects):
+def refresh_preview(objects, meshes):
+    """The preview after an update, for the mesh objects it reported (``objects``; Blender reports
+    a changed mesh's objects with it, ``meshes`` being the pointers of the meshes it reported),
+    those bound and with the preview on; the rest of the scene is not looked at. Never raises.
+
+    * One the preview shows that it can no longer draw as Blender would (a script set a few faces
+      of a smooth mesh flat, a modifier was added: :func:`preview.blocker` gives a reason) catches
+      up now (catchup.catch_up: the mesh is written with the final pose of the current targets
+      and shown again), as a live move would have written it, rather than being drawn wrongly
+      until the next move or the catch-up timer. A mesh being dragged is left to its drag, whose
+      next step asks the blocker itself (and confirm or cancel write or restore the pose key).
+    * A live mesh whose faces changed has their shading read now, so the next live move reads
+      nothing per face (preview.face_shading). Only where everything else lets the preview draw
+      (the blocker stops before the faces otherwise: a mesh written at each move is not read
+      again at each move). Not in Edit Mode, whose edits reach the mesh when it is left."""
+    for obj in objects:
         try:
-            if (obj.type != "MESH" or obj.data is None or obj.data.as_pointer() not in meshes
-                    or not obj.larap.bound or not obj.larap.live or not obj.larap.preview):
+            s = obj.larap
+            if not s.bound or not s.preview or obj.data is None or obj.mode == "EDIT" or dragging(obj):
                 continue
-            if preview.shading_stale(obj) and obj.mode != "EDIT":
+            if preview.showing(obj):
+                if preview.blocker(obj):
+                    catchup.catch_up(obj)
+            elif s.live and obj.data.as_pointer() in meshes and preview.shading_stale(obj):
                 preview.blocker(obj)
         except (ReferenceError, AttributeError, RuntimeError):
             continue

@@ -25,9 +25,11 @@ visible (view-layer collections, Disable in Viewports, local view).
 the mesh instead (background mode, preview off, B-spline interactive weights, modifiers after the
 pose key, other shape keys mixed in, display as wire/bounds, no GPU shader, hidden by the
 artist, shading the preview does not draw: mixed flat and smooth faces, custom normals, auto
-smooth). An object the artist hid stays hidden: the preview never draws it, and :func:`stop` leaves
-it hidden as it found it. Nothing in it reads the mesh per move: the faces' shading is read once
-per change of the mesh (:func:`face_shading`, told by the depsgraph handler).
+smooth); when it gives one for an object already shown, the depsgraph handler ends the preview
+there (handlers.refresh_preview: the mesh catches up). An object the artist hid stays hidden:
+the preview never draws it, and :func:`stop` leaves it hidden as it found it. Nothing in it reads
+the mesh per move: the faces' shading is read once per change of the mesh (:func:`face_shading`,
+told by the depsgraph handler).
 
 Why one file of over 500 lines: it holds one concept, the GPU preview, whose parts share one
 contract that must change together: the texture layouts ``_GpuMesh`` uploads are the ones the
@@ -47,7 +49,7 @@ _DRAW_HANDLE = globals().get("_DRAW_HANDLE")
 _SHOWN = globals().get("_SHOWN") or {}  # runtime id -> {"select": bool, "hidden": bool}: objects we hid
 _GPU = {}  # runtime id -> _GpuMesh
 _SHADER = [None, ""]  # compiled shader, error message
-_SHADING = {}  # runtime id -> [(mesh pointer, face count) or None once the mesh changed, face_shading()]
+_SHADING = {}  # mesh pointer -> [face count, or None once the mesh changed; face_shading()]
 TEX_WIDTH = 2048  # texels per row of the lattice and cell textures
 # ID property set on an object while we hide it (1, or 2 when it was selected, 3 when it was
 # hidden already): an undo step or an autosave taken meanwhile stores the hidden state with it,
@@ -129,35 +131,42 @@ def face_shading(obj):
     costs tens of milliseconds, so it is read once and kept (``_SHADING``) until the mesh changes:
     :func:`meshes_changed` (every depsgraph update of the mesh: Shade Smooth/Flat, leaving Edit
     Mode, a script's update, the catch-up's own write), :func:`reset_all` (undo, redo, load), or
-    another mesh or face count on the object. A live move changes no mesh, so it reads nothing."""
-    key = obj.larap.runtime_id
+    another face count (another mesh on the object has an entry of its own). A live move changes
+    no mesh, so it reads nothing.
+
+    Kept per mesh, not per object: the answer is the mesh's alone. Objects that share one mesh
+    (Alt+D) share its one answer; a duplicate with its own mesh (Shift+D) has its own, though it
+    shares its original's runtime id until it is bound or posed (runtime.claim_key)."""
     me = obj.data
-    stamp = (me.as_pointer(), len(me.polygons))
-    entry = _SHADING.get(key)
-    if entry is None or entry[0] != stamp:
-        entry = _SHADING[key] = [stamp, _read_face_shading(me)]
+    count = len(me.polygons)
+    entry = _SHADING.get(me.as_pointer())
+    if entry is None or entry[0] != count:
+        entry = _SHADING[me.as_pointer()] = [count, _read_face_shading(me)]
     return entry[1]
 
 
 def meshes_changed(pointers):
     """The depsgraph reported these meshes (``Mesh.as_pointer()`` of the originals) updated: their
-    faces' shading is read again when next asked (the last answer stays for the draw meanwhile)."""
-    for entry in _SHADING.values():
-        if entry[0] is not None and entry[0][0] in pointers:
+    faces' shading is read again when next asked (the last answer stays for the draw meanwhile).
+    A mesh newly given to an object is reported too, so an entry left by a freed mesh whose
+    address was reused is not trusted past the first evaluation."""
+    for pointer in pointers:
+        entry = _SHADING.get(pointer)
+        if entry is not None:
             entry[0] = None
 
 
 def draws_smooth(obj):
     """The shader's normals for ``obj``: its vertex normals (smooth), else its faces' (flat), as
-    its faces' shading was last read (the blocker keeps a mixed mesh from being drawn)."""
-    entry = _SHADING.get(obj.larap.runtime_id)
+    its mesh's faces' shading was last read (the blocker keeps a mixed mesh from being drawn)."""
+    entry = _SHADING.get(obj.data.as_pointer())
     return entry is None or entry[1] != "flat"
 
 
 def shading_stale(obj):
     """``obj``'s faces' shading is to be read again (its mesh changed since the last read)."""
     try:
-        entry = _SHADING.get(obj.larap.runtime_id)
+        entry = _SHADING.get(obj.data.as_pointer())
     except ReferenceError:
         return False
     return entry is None or entry[0] is None
@@ -247,7 +256,9 @@ def forget(key):
     """Drop what we hold for a runtime id whose object is gone."""
     _SHOWN.pop(key, None)
     _GPU.pop(key, None)
-    _SHADING.pop(key, None)
+    alive = {me.as_pointer() for me in bpy.data.meshes}
+    for pointer in [p for p in _SHADING if p not in alive]:  # meshes removed since
+        del _SHADING[pointer]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -59,6 +59,12 @@ struct DisjointSets {
 
 Eigen::Vector3i corner_offset(int c) { return Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2); }
 
+std::string short_number(double x) {  // 3 significant digits, exponent when needed
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", x);
+  return buf;
+}
+
 }  // namespace
 
 // Builds a lattice from its cell copies (grid order, copies of a cell consecutive) and the
@@ -373,7 +379,18 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
   const Eigen::Vector3d hi = mesh.vertices.colwise().maxCoeff().transpose();
   const Eigen::Vector3d extent = hi - lo;
-  const double diag = extent.norm();
+  if (!extent.allFinite())
+    throw InvalidInput("the mesh spans more than the largest double along an axis (from " + short_number(lo.minCoeff()) +
+                       " to " + short_number(hi.maxCoeff()) + "); scale it down");
+  const double diag = extent.stableNorm();  // no overflow for coordinates near the double range
+  // The solve squares lengths and multiplies them by weights: keep every square far inside the
+  // double range (a mesh this large or small would give a non-finite pose, not an error).
+  constexpr double kMaxSize = 1e60, kMinSize = 1e-60;
+  if (diag > kMaxSize || (diag > 0.0 && diag < kMinSize))
+    throw InvalidInput("the mesh's size (bounding-box diagonal " + short_number(diag) +
+                       ") is outside what the solver handles, 1e-60 to 1e60; scale it (or check for a stray vertex)");
+  if (options.cell_size > kMaxSize)
+    throw InvalidInput("cell_size " + short_number(options.cell_size) + " is beyond 1e60; scale the mesh");
   const std::vector<Eigen::Vector3i> tris = triangulate(mesh);
 
   Grid grid;
@@ -386,9 +403,12 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     if (target > int64_t(2e9))
       throw OutOfMemory("cells=" + std::to_string(target) + " is beyond what a lattice can hold");
     // Initial guess: the target number of cubes filling the (thickened) bounding box.
+    // (diag is within 1e-60..1e60, checked above, so this product of three lengths stays finite.)
     double box = 1.0;
     for (int a = 0; a < 3; ++a) box *= std::max(extent[a], diag / 50.0);
     double h = std::cbrt(box / double(target));
+    if (!(h > 0.0) || !std::isfinite(h))
+      throw InvalidInput("no cell size fits this mesh's extent (" + short_number(diag) + "); give cell_size");
     // The kept count grows like h^-3 for solids and h^-2 for shells: correct h a few times.
     double best_err = std::numeric_limits<double>::infinity();
     for (int pass = 0; pass < 5; ++pass) {

@@ -183,6 +183,10 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
   g.dims = grid_dims(hi - lo, h);
   check_memory(g.dims, h, max_bytes);
   g.origin = lo - Eigen::Vector3d::Constant(kPad * h);
+  const Eigen::Vector3d far_corner = g.origin + h * g.dims.cast<double>();
+  if (!g.origin.allFinite() || !far_corner.allFinite())
+    throw InvalidInput("the lattice's grid (cell size " + std::to_string(h) +
+                       ") reaches beyond the largest double; scale the mesh down");
   g.marks.assign(static_cast<size_t>(g.size()), 0);
 
   mark_surface(g, mesh.vertices, tris);

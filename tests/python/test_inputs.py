@@ -190,3 +190,42 @@ def test_limits_are_the_engines():
     d.set_handles([0])
     with pytest.raises(ValueError, match=str(larap._core.MAX_ITERATIONS)):
         d.solve(V[:1], iterations=larap._core.MAX_ITERATIONS + 1)
+
+
+@pytest.mark.parametrize("scale", [1e-40, 1e-6, 1e6, 1e40])
+def test_a_scaled_mesh_gives_the_scaled_pose(scale):
+    """ARAP has no length scale: a mesh scaled by s, posed by targets scaled by s, gives the pose
+    scaled by s, from nanometres to light years (no overflow or underflow in the solve)."""
+    from larap import shapes
+    V, F = shapes.box((0, 0, 0), (4, 1, 1), 6)
+    ends = [np.flatnonzero(V[:, 0] < 0.5), np.flatnonzero(V[:, 0] > 3.5)]
+    T = np.stack([np.eye(4), np.eye(4)])
+    T[1, :3, 3] = (0.0, 0.8, 0.3)
+    poses = []
+    for s in (1.0, scale):
+        d = larap.Deformer(V * s, F, cells=200)
+        d.set_handle_groups(ends)
+        Ts = T.copy()
+        Ts[:, :3, 3] *= s
+        poses.append(d.solve(transforms=Ts, iterations=10) / s)
+    assert np.isfinite(poses[1]).all()
+    assert np.abs(poses[1] - poses[0]).max() <= 1e-6 * 4.0
+
+
+@pytest.mark.parametrize("where", ["huge vertex", "tiny mesh", "span beyond doubles", "huge cell"])
+def test_sizes_beyond_the_solver_are_refused_with_a_reason(where):
+    """A stray vertex at 1e300, a mesh of 1e-300 units, coordinates spanning more than the double
+    range or a cell of 1e100: a clear ValueError, never a crash or a non-finite pose."""
+    from larap import shapes
+    V, F = shapes.box((0, 0, 0), (1, 1, 1), 2)
+    kw = {}
+    if where == "huge vertex":
+        V[3, 0] = 1e300
+    elif where == "tiny mesh":
+        V = V * 1e-300
+    elif where == "span beyond doubles":
+        V[0, 0], V[1, 0] = -1.5e308, 1.5e308
+    else:
+        kw = {"cell_size": 1e100}
+    with pytest.raises(ValueError, match="scale"):
+        larap.Deformer(V, F, **kw)

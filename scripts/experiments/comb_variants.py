@@ -118,26 +118,9 @@ def hand_setup():
         return None
     import test_topology as tt
     V, F = larap.load_mesh(path)
-    tris = np.array([[f[0], f[k], f[k + 1]] for f in F for k in range(1, len(f) - 1)])
-    _, _, W = np.linalg.svd(V - V.mean(0), full_matrices=False)
-    best = None
-    for sign in (1.0, -1.0):
-        s = sign * ((V - V.mean(0)) @ W[0])
-        for frac in (0.6, 0.65, 0.7, 0.75):
-            parts = tt.finger_parts(V, tris, s, s.min() + frac * np.ptp(s))
-            if best is None or len(parts) > len(best[1]):
-                best = (s, parts, sign)
-    s, fingers, sign = best
-    axis = sign * W[0]
-    palm = np.flatnonzero(s < s.min() + 0.35 * np.ptp(s))
-    tips = [f[s[f] > np.quantile(s[f], 0.6)] for f in fingers]
-    moved = int(np.argmax([len(f) for f in fingers]))
-    finger = fingers[moved]
-    root = V[finger[np.argmin(s[finger])]]
-    T = [np.eye(4) for _ in range(1 + len(tips))]
-    T[1 + moved] = affine(rotation(np.cross(axis, W[2]), 60), pivot=root)
+    groups, T, fingers, moved, length = tt.hand_finger_pose(V, F)
     d = larap.Deformer(V, F, weights="bspline")
-    return V, d, [palm] + tips, np.stack(T), fingers, moved, np.ptp(s[finger])
+    return V, d, groups, T, fingers, moved, length
 
 
 def run_hand(variant, cache={}):

@@ -207,15 +207,11 @@ def finger_parts(V, tris, s, cut):
     return [np.flatnonzero(roots == r) for r in labels[counts >= 20]]
 
 
-@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
-def test_hand_finger_turned_leaves_the_other_fingers(shared_meshes, weights):
-    """hand_lowres.obj: palm and the other fingertips held, one finger turned 60 degrees about its
-    root. Fingers are found from the mesh: along its main axis, the parts beyond a cut."""
-    path = os.path.join(shared_meshes, "hand_lowres.obj")
-    if not os.path.exists(path):
-        pytest.skip("hand_lowres.obj not present")
-    V, F = larap.load_mesh(path)
-    size = diagonal(V)
+def hand_finger_pose(V, F):
+    """The hand's pose of issue 9: fingers found from the mesh (along its main axis, the parts
+    beyond a cut), the palm and every fingertip held, the longest finger turned 60 degrees about
+    its root, out of the plane of the hand. Returns (groups = [palm] + tips, transforms (G,4,4),
+    fingers, index of the moved finger, its length along the main axis)."""
     tris = np.array([[f[0], f[k], f[k + 1]] for f in F for k in range(1, len(f) - 1)])
     _, _, W = np.linalg.svd(V - V.mean(0), full_matrices=False)
     best = None
@@ -226,22 +222,36 @@ def test_hand_finger_turned_leaves_the_other_fingers(shared_meshes, weights):
             if best is None or len(parts) > len(best[1]):
                 best = (s, parts, sign)
     s, fingers, sign = best
-    assert len(fingers) >= 4, f"found {len(fingers)} fingers"
     axis = sign * W[0]
     palm = np.flatnonzero(s < s.min() + 0.35 * np.ptp(s))
     tips = [f[s[f] > np.quantile(s[f], 0.6)] for f in fingers]
-    moved = int(np.argmax([len(f) for f in fingers]))
-    finger = fingers[moved]
-    root = V[finger[np.argmin(s[finger])]]
-    # turn about the axis across the hand (normal to the palm's plane x main axis): the finger
-    # curls out of the plane of the hand, away from its neighbours
-    bend_axis = np.cross(axis, W[2])
+    moved = int(np.argmax([len(f) for f in fingers])) if fingers else 0
     T = [np.eye(4) for _ in range(1 + len(tips))]
-    T[1 + moved] = affine(rotation(bend_axis, 60), pivot=root)
+    if fingers:
+        finger = fingers[moved]
+        root = V[finger[np.argmin(s[finger])]]
+        # turn about the axis across the hand (normal to the palm's plane x main axis): the
+        # finger curls out of the plane of the hand, away from its neighbours
+        T[1 + moved] = affine(rotation(np.cross(axis, W[2]), 60), pivot=root)
+    length = float(np.ptp(s[fingers[moved]])) if fingers else 0.0
+    return [palm] + tips, np.stack(T), fingers, moved, length
+
+
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_hand_finger_turned_leaves_the_other_fingers(shared_meshes, weights):
+    """hand_lowres.obj: palm and the other fingertips held, one finger turned 60 degrees about its
+    root. Fingers are found from the mesh: along its main axis, the parts beyond a cut."""
+    path = os.path.join(shared_meshes, "hand_lowres.obj")
+    if not os.path.exists(path):
+        pytest.skip("hand_lowres.obj not present")
+    V, F = larap.load_mesh(path)
+    size = diagonal(V)
+    groups, T, fingers, moved, length = hand_finger_pose(V, F)
+    assert len(fingers) >= 4, f"found {len(fingers)} fingers"
+    tips = groups[1:]
     d = larap.Deformer(V, F, weights=weights)
-    d.set_handle_groups([palm] + tips)
-    X = d.solve(transforms=np.stack(T), iterations=30)
-    length = np.ptp(s[finger])
+    d.set_handle_groups(groups)
+    X = d.solve(transforms=T, iterations=30)
     miss = np.linalg.norm(X[tips[moved]] - apply(T[1 + moved], V[tips[moved]]), axis=1).max()
     assert miss <= 0.03 * length, miss / length
     for k, f in enumerate(fingers):

@@ -37,6 +37,9 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
     nbr_host_.assign(size_t(6) * n_, 0);
     for (int i = 0; i < n_; ++i)
       for (int d = 0; d < 6; ++d) nbr_host_[size_t(d) * n_ + i] = i;
+    // Edge weights only where the lattice has them (split cells); else every edge weighs 1.
+    const bool weighted = lattice.weighted();
+    std::vector<float> slot_w(weighted ? size_t(6) * n_ : 0, 1.f), extra_w;
     std::vector<int> xoff(size_t(n_) + 1, 0), extra;
     for (int i = 0; i < n_; ++i) {
       for (int k = lattice.adj_offsets[i]; k < lattice.adj_offsets[i + 1]; ++k) {
@@ -45,16 +48,25 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
         const int d = nbr_slot(lattice.node_coords[size_t(i)], lattice.node_coords[size_t(j)]);
         if (d < 0) throw DeviceError("lattice edge is not an axis-aligned unit step");
         int& slot = nbr_host_[size_t(d) * n_ + i];
-        if (slot == i)
+        const float w = weighted ? float(lattice.adj_weight[size_t(k)]) : 1.f;
+        if (slot == i) {
           slot = j;
-        else
+          if (weighted) slot_w[size_t(d) * n_ + i] = w;
+        } else {
           extra.push_back(j);
+          if (weighted) extra_w.push_back(w);
+        }
       }
       xoff[size_t(i) + 1] = int(extra.size());
     }
     sys_.nbr = nbr_.upload(nbr_host_.data(), nbr_host_.size(), stream_);
     sys_.nbx_off = nbx_off_.upload(xoff.data(), xoff.size(), stream_);
     sys_.nbx = nbx_.upload(extra.data(), extra.size(), stream_);
+    if (weighted) {
+      sys_.nbw = nbw_.upload(slot_w.data(), slot_w.size(), stream_);
+      sys_.nbxw = nbxw_.upload(extra_w.data(), extra_w.size(), stream_);
+    }
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // the host tables may go
   }
   {  // the stencil shell's weights (Lattice::fill_shell)
     std::vector<float> w(lattice.shell_weights.size());

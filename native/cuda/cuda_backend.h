@@ -166,6 +166,7 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<int> agg2_, c_off_, c_col_;
   cuda::DeviceBuffer<float> c_val_, c_minv_;
   cuda::DeviceBuffer<int> nbx_off_, nbx_, shell_off_, shell_ids_, a_off_, a_col_, iter_;
+  cuda::DeviceBuffer<float> nbw_, nbxw_;  // edge weights of the slots and extras (weighted lattices)
   cuda::DeviceBuffer<float> shell_w_;
   cuda::DeviceBuffer<float> a_val_, minv_, rot_, coef_;
   cuda::DeviceBuffer<uint8_t> anch_;

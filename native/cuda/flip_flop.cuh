@@ -18,11 +18,16 @@ struct SlotEdges {
   const System& s;
   float4 pi, ci;
   int js[6];
-  __device__ __forceinline__ SlotEdges(const System& sys, int i) : s(sys), pi(sys.x[i]), ci(sys.rest[i]) {
+  int i_;
+  __device__ __forceinline__ SlotEdges(const System& sys, int i)
+      : s(sys), pi(sys.x[i]), ci(sys.rest[i]), i_(i) {
 #pragma unroll
     for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
   }
   __device__ __forceinline__ int size() const { return 6; }
+  __device__ __forceinline__ float weight(int k) const {
+    return s.nbw ? __ldg(s.nbw + k * s.n + i_) : 1.f;
+  }
   __device__ __forceinline__ void edge(int k, float (&dp)[3], float (&dc)[3]) const {
     const int j = js[k];
     const float4 p = pi - s.x[j], c = ci - s.rest[j];
@@ -47,6 +52,7 @@ struct ExtraEdges {
   __device__ __forceinline__ ExtraEdges(const System& sys, int i, float4 p, float4 c)
       : s(sys), pi(p), ci(c), k0(__ldg(sys.nbx_off + i)), k1(__ldg(sys.nbx_off + i + 1)) {}
   __device__ __forceinline__ int size() const { return k1 - k0; }
+  __device__ __forceinline__ float weight(int k) const { return s.nbxw ? __ldg(s.nbxw + k0 + k) : 1.f; }
   __device__ __forceinline__ void edge(int k, float (&dp)[3], float (&dc)[3]) const {
     const int j = __ldg(s.nbx + k0 + k);
     const float4 p = pi - s.x[j], c = ci - s.rest[j];
@@ -144,7 +150,7 @@ __device__ __forceinline__ float4 float_residual_at(const System& s, int i) {
 
 // Row i of the global step's starting residual r = b - A x, A = 2 g L + M + a I_anchored, formed
 // so that nothing large cancels in float:
-//   r_i = g sum_j [(R_i + R_j)(c_i - c_j) - 2 (x_i - x_j)] + a (c_i - x_i) [anchored]
+//   r_i = g sum_j w_ij [(R_i + R_j)(c_i - c_j) - 2 (x_i - x_j)] + a (c_i - x_i) [anchored]
 //       + (H_i - (M x)_i)  (in double: the handle term; system.h)
 // The float terms are edge differences (their rounding scales with the cell size, not with the
 // distance from the frame's origin); the handle part is exact up to the rounding of x itself.
@@ -152,12 +158,13 @@ __device__ __forceinline__ float4 residual_at(const System& s, int i) {
   if (!s.exact_residual) return float_residual_at(s, i);
   const SlotEdges edges(s, i);
   float4 r = arap_rhs_at(s, edges, i);
-  float4 lap = f4(0, 0, 0);  // sum_j (x_i - x_j)
+  float4 lap = f4(0, 0, 0);  // sum_j w_ij (x_i - x_j)
 #pragma unroll
-  for (int d = 0; d < 6; ++d) lap = lap + (edges.pi - s.x[edges.js[d]]);
+  for (int d = 0; d < 6; ++d) lap = lap + edges.weight(d) * (edges.pi - s.x[edges.js[d]]);
   {
     const ExtraEdges extra(s, i, edges.pi, edges.ci);
-    for (int k = extra.k0; k < extra.k1; ++k) lap = lap + (edges.pi - s.x[__ldg(s.nbx + k)]);
+    for (int k = 0; k < extra.size(); ++k)
+      lap = lap + extra.weight(k) * (edges.pi - s.x[__ldg(s.nbx + extra.k0 + k)]);
   }
   r = r - (2.f * s.g) * lap;
   if (s.anchored[i]) r = r + s.a * (edges.ci - edges.pi);

@@ -32,6 +32,10 @@ struct System {
   const int* nbr = nullptr;
   const int* nbx_off = nullptr;  // n + 1
   const int* nbx = nullptr;
+  // Edge weights (Lattice::adj_weight) of the slots (like nbr) and of the extras (like nbx); null
+  // when the lattice has none (every edge weighs 1).
+  const float* nbw = nullptr;
+  const float* nbxw = nullptr;
   // A split for unrolled products: diagonal, the 6 slot entries (slot-major, like nbr), and the
   // remaining entries (extra neighbours of split cells, handle couplings between non-neighbours)
   // as a short CSR.

@@ -189,19 +189,23 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
 
   // Pieces: 6-connected components of the material voxels of each cell.
   std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
+  std::vector<std::vector<int32_t>> sizes(static_cast<size_t>(nb));  // material voxels per piece
   parallel_for(nb, [&](int64_t b) {
     uint8_t* v = vox.data() + b * k3;
     std::vector<int32_t> todo;
+    auto& size = sizes[size_t(b)];
     int32_t np = 0;
     for (int64_t start = 0; start < k3; ++start) {
       if (v[start] >= 2) continue;
       const uint8_t label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
       ++np;
+      if (size.size() < 253) size.push_back(0);
       v[start] = label;
       todo.push_back(int32_t(start));
       while (!todo.empty()) {
         const int32_t vi = todo.back();
         todo.pop_back();
+        ++size[label - 3];
         const int c[3] = {vi % k, (vi / k) % k, vi / (k * k)};
         for (int f = 0; f < 6; ++f) {
           int n[3] = {c[0], c[1], c[2]};
@@ -292,9 +296,12 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   for (size_t i = 0; i < held.size(); ++i)
     if (held_piece[i]) out.vertex_pieces.emplace_back(held[i], held_piece[i]);
 
+  out.k = k;
   for (int64_t b = 0; b < nb; ++b) {
     out.cells.push_back(surf_cells[cand_surf[b]]);
     out.pieces.push_back(pieces[b]);
+    if (sizes[size_t(b)].empty()) sizes[size_t(b)].push_back(0);  // a cell without material: one piece
+    out.piece_voxels.insert(out.piece_voxels.end(), sizes[size_t(b)].begin(), sizes[size_t(b)].end());
     out.links.insert(out.links.end(), links[b].begin(), links[b].end());
   }
   return out;

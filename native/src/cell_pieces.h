@@ -50,6 +50,11 @@ struct PieceLink {
 struct CellPieces {
   std::vector<int64_t> cells;     // analysed cells (grid indices), ascending
   std::vector<int32_t> pieces;    // number of pieces of each analysed cell (>= 1)
+  // Material voxels of each piece, pieces of the analysed cells in order (sum of `pieces` long):
+  // a piece's share of its cell is piece_voxels / k^3 (surface voxels count, so a sheet's share
+  // is about 1/k per layer).
+  std::vector<int32_t> piece_voxels;
+  int k = 0;                      // voxels per cell edge
   std::vector<PieceLink> links;   // every connection once (a_cell < b_cell when both analysed)
   // (vertex, piece in its cell) of the vertices whose piece is not 0, ascending (a vertex of an
   // unanalysed cell is in piece 0).

@@ -42,9 +42,11 @@ struct CsrEdges {
   const double* C;  // rest
   const Rotation* R;
   const int32_t* adj;
+  const double* w;  // adj_weight, or null: every edge weighs 1
   int64_t i;
   int32_t begin, end;
   int size() const { return end - begin; }
+  double weight(int k) const { return w ? w[begin + k] : 1.0; }
   void edge(int k, double (&dp)[3], double (&dc)[3]) const {
     const int64_t j = adj[begin + k];
     for (int a = 0; a < 3; ++a) {
@@ -180,7 +182,8 @@ class CpuBackend final : public Backend {
   }
 
   CsrEdges edges_of(int64_t i) const {
-    return {pose_.data(), lat_.rest.data(), R_.data(), lat_.adj.data(), i, lat_.adj_offsets[i],
+    return {pose_.data(), lat_.rest.data(), R_.data(), lat_.adj.data(),
+            lat_.weighted() ? lat_.adj_weight.data() : nullptr, i, lat_.adj_offsets[i],
             lat_.adj_offsets[i + 1]};
   }
 

@@ -37,7 +37,13 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
     for (int64_t j = b; j < e; ++j) hs.alpha[j] = wg / double(G) * (omega.empty() ? 1.0 : omega[j]) / total;
   }
 
-  const double directed = std::max<double>(1.0, 2.0 * double(lat.edges.size()));
+  // gamma is per unit of edge weight (the plain lattice: per directed edge).
+  double weight = double(lat.edges.size());
+  if (lat.weighted()) {
+    weight = 0.0;
+    for (double w : lat.edge_weight) weight += w;
+  }
+  const double directed = std::max<double>(1.0, 2.0 * weight);
   const double s = size, h = lat.h;
   hs.gamma_eff = gamma * s * s / (h * h * directed);
   hs.energy_scale = 1.0 / (s * s);
@@ -199,11 +205,13 @@ std::vector<Eigen::Triplet<double>> arap_triplets(const Lattice& lat, const Hand
   std::vector<Eigen::Triplet<double>> trip;
   trip.reserve(lat.edges.size() * 4 + size_t(lat.num_nodes()));
   const double g2 = 2.0 * hs.gamma_eff;
-  for (const auto& e : lat.edges) {
-    trip.emplace_back(e[0], e[0], g2);
-    trip.emplace_back(e[1], e[1], g2);
-    trip.emplace_back(e[0], e[1], -g2);
-    trip.emplace_back(e[1], e[0], -g2);
+  for (size_t k = 0; k < lat.edges.size(); ++k) {
+    const auto& e = lat.edges[k];
+    const double w = lat.weighted() ? g2 * lat.edge_weight[k] : g2;
+    trip.emplace_back(e[0], e[0], w);
+    trip.emplace_back(e[1], e[1], w);
+    trip.emplace_back(e[0], e[1], -w);
+    trip.emplace_back(e[1], e[0], -w);
   }
   for (int64_t i = 0; i < lat.num_real_nodes(); ++i)  // the shell is not in the system
     if (hs.anchored[i]) trip.emplace_back(int(i), int(i), hs.anchor_weight);

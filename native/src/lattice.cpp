@@ -193,30 +193,44 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q) lat.cell_nodes[c][q] = node_of_slot[slots.find(int32_t(8 * c + q))];
 
-  // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node.
+  // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node;
+  // an edge of several copies weighs the mean of their weights.
+  const bool weighted = !lat.cell_weight.empty();
   std::vector<int32_t> count(size_t(nn) + 1, 0);
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q)
       for (int a = 0; a < 3; ++a)
         if (!((q >> a) & 1)) ++count[lat.cell_nodes[c][q] + 1];
   for (int64_t i = 0; i < nn; ++i) count[i + 1] += count[i];
-  std::vector<std::pair<int32_t, int32_t>> up(static_cast<size_t>(count[nn]));  // (axis, upper) per lower node
+  struct Up {
+    int32_t axis, upper;
+    double w;
+    bool operator<(const Up& o) const { return axis != o.axis ? axis < o.axis : upper < o.upper; }
+  };
+  std::vector<Up> up(static_cast<size_t>(count[nn]));  // per lower node
   {
     std::vector<int32_t> fill(count.begin(), count.end() - 1);
     for (int64_t c = 0; c < nc; ++c)
       for (int q = 0; q < 8; ++q)
         for (int a = 0; a < 3; ++a)
-          if (!((q >> a) & 1)) up[size_t(fill[lat.cell_nodes[c][q]]++)] = {a, lat.cell_nodes[c][q | (1 << a)]};
+          if (!((q >> a) & 1))
+            up[size_t(fill[lat.cell_nodes[c][q]]++)] = {a, lat.cell_nodes[c][q | (1 << a)],
+                                                       weighted ? lat.cell_weight[c] : 1.0};
   }
-  std::vector<std::vector<int32_t>> nbrs(static_cast<size_t>(nn));
+  std::vector<std::vector<std::pair<int32_t, double>>> nbrs(static_cast<size_t>(nn));
   for (int64_t i = 0; i < nn; ++i) {
     auto b = up.begin() + count[i], e = up.begin() + count[i + 1];
-    std::sort(b, e);
-    e = std::unique(b, e);
-    for (auto it = b; it != e; ++it) {
-      lat.edges.push_back({int32_t(i), it->second});
-      nbrs[i].push_back(it->second);
-      nbrs[it->second].push_back(int32_t(i));
+    std::sort(b, e);  // ties keep no order, but their weights are only summed
+    for (auto it = b; it != e;) {
+      auto run = it;
+      double sum = 0.0;
+      for (; run != e && run->axis == it->axis && run->upper == it->upper; ++run) sum += run->w;
+      const double w = sum / double(run - it);
+      lat.edges.push_back({int32_t(i), it->upper});
+      if (weighted) lat.edge_weight.push_back(w);
+      nbrs[i].emplace_back(it->upper, w);
+      nbrs[it->upper].emplace_back(int32_t(i), w);
+      it = run;
     }
   }
   lat.adj_offsets.assign(size_t(nn + 1), 0);
@@ -225,7 +239,12 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
     lat.adj_offsets[i + 1] = lat.adj_offsets[i] + int32_t(nbrs[i].size());
   }
   lat.adj.reserve(size_t(lat.adj_offsets[nn]));
-  for (int64_t i = 0; i < nn; ++i) lat.adj.insert(lat.adj.end(), nbrs[i].begin(), nbrs[i].end());
+  if (weighted) lat.adj_weight.reserve(size_t(lat.adj_offsets[nn]));
+  for (int64_t i = 0; i < nn; ++i)
+    for (const auto& [j, w] : nbrs[i]) {
+      lat.adj.push_back(j);
+      if (weighted) lat.adj_weight.push_back(w);
+    }
 
   // Connected components (union-find over edges).
   DisjointSets comp(nn);
@@ -264,6 +283,22 @@ Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eig
     }
   }
   Lattice lat = start(origin, h, dims, copy_cell, kinds);
+  // Stiffness of the copies of split cells: their piece's share of the cell's material.
+  if (pieces.k > 0) {
+    const double k3 = double(pieces.k) * pieces.k * pieces.k, floor = 1.0 / pieces.k;
+    size_t first_piece = 0;
+    for (size_t a = 0; a < pieces.cells.size(); ++a) {
+      const int32_t n = pieces.pieces[a];
+      if (n > 1) {
+        if (lat.cell_weight.empty()) lat.cell_weight.assign(size_t(lat.num_cells()), 1.0);
+        const int32_t c0 = lat.cell_grid_[pieces.cells[a]];
+        for (int32_t p = 0; p < n; ++p)
+          lat.cell_weight[size_t(c0 + p)] =
+              std::clamp(double(pieces.piece_voxels[first_piece + size_t(p)]) / k3, floor, 1.0);
+      }
+      first_piece += size_t(n);
+    }
+  }
   DisjointSets slots(8 * lat.num_cells());
   share_points(lat, plain, slots);
   for (const PieceLink& l : pieces.links) {

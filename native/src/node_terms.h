@@ -2,16 +2,18 @@
 // (double, CSR adjacency) and the CUDA kernels (float, fixed 6-slot neighbour table): each
 // backend passes an accessor to its own storage, the arithmetic is here (LARAP_HD).
 //
-// For node i with lattice neighbours j (rest c, deformed p, rotations R, all 3x3 row-major):
-//   covariance  S_i = sum_j (p_i - p_j)(c_i - c_j)^T           -> the rotation fit R_i(S_i)
-//   ARAP energy e_i = sum_j |(p_i - p_j) - R_i (c_i - c_j)|^2   (with the rotation R_i it has)
+// For node i with lattice neighbours j (rest c, deformed p, rotations R, all 3x3 row-major, edge
+// weights w_ij: 1 on the plain lattice, lattice.h):
+//   covariance  S_i = sum_j w_ij (p_i - p_j)(c_i - c_j)^T           -> the rotation fit R_i(S_i)
+//   ARAP energy e_i = sum_j w_ij |(p_i - p_j) - R_i (c_i - c_j)|^2   (with the rotation R_i it has)
 //   node energy E_i = g e_i + a |p_i - c_i|^2 [i anchored]
-//   rhs         b_i = g sum_j (R_i + R_j)(c_i - c_j)            (+ (B^T t)_i + a c_i [anchored])
+//   rhs         b_i = g sum_j w_ij (R_i + R_j)(c_i - c_j)            (+ (B^T t)_i + a c_i [anchored])
 //
 // The accessor `Edges` has
 //   int size() const;                                             number of edges of node i
 //   void edge(int k, Real (&dp)[3], Real (&dc)[3]) const;        p_i - p_j and c_i - c_j
 //   void rest_edge(int k, Real (&dc)[3], Real (&Rj)[9]) const;   c_i - c_j and R_j
+//   Real weight(int k) const;                                     w_ij
 // A missing neighbour may be given as j = i (zero edge vectors add nothing).
 #pragma once
 #include "host_device.h"
@@ -29,11 +31,13 @@ LARAP_HD Real node_covariance(const Edges& edges, bool want_energy, const Real* 
   for (int k = 0; k < edges.size(); ++k) {
     Real dp[3], dc[3];
     edges.edge(k, dp, dc);
+    const Real w = edges.weight(k);
     LARAP_UNROLL
     for (int a = 0; a < 3; ++a) {
-      S[3 * a + 0] += dp[a] * dc[0];
-      S[3 * a + 1] += dp[a] * dc[1];
-      S[3 * a + 2] += dp[a] * dc[2];
+      const Real wp = w * dp[a];
+      S[3 * a + 0] += wp * dc[0];
+      S[3 * a + 1] += wp * dc[1];
+      S[3 * a + 2] += wp * dc[2];
     }
     if (want_energy) {
       Real r2 = Real(0);
@@ -42,7 +46,7 @@ LARAP_HD Real node_covariance(const Edges& edges, bool want_energy, const Real* 
         const Real r = dp[a] - (Ri[3 * a] * dc[0] + Ri[3 * a + 1] * dc[1] + Ri[3 * a + 2] * dc[2]);
         r2 += r * r;
       }
-      e += r2;
+      e += w * r2;
     }
   }
   return e;
@@ -64,11 +68,12 @@ LARAP_HD void node_rhs(const Edges& edges, Real g, const Real* Ri, Real (&b)[3])
   for (int k = 0; k < edges.size(); ++k) {
     Real dc[3], Rj[9];
     edges.rest_edge(k, dc, Rj);
+    const Real w = edges.weight(k);
     LARAP_UNROLL
     for (int a = 0; a < 3; ++a) {
       const Real m0 = Ri[3 * a] + Rj[3 * a], m1 = Ri[3 * a + 1] + Rj[3 * a + 1],
                  m2 = Ri[3 * a + 2] + Rj[3 * a + 2];
-      acc[a] += m0 * dc[0] + m1 * dc[1] + m2 * dc[2];
+      acc[a] += w * (m0 * dc[0] + m1 * dc[1] + m2 * dc[2]);
     }
   }
   LARAP_UNROLL

@@ -327,6 +327,17 @@ class Deformer:
         """(E, 2) node index pairs of the lattice edges (the ARAP neighbourhood)."""
         return self._core.lattice_edges()
 
+    def lattice_edge_weights(self) -> np.ndarray:
+        """(E,) weight of each lattice edge in the ARAP energy: the mean of cell_weights over the
+        cells (copies) it is an edge of; 1 wherever no cell is split."""
+        return self._core.lattice_edge_weights()
+
+    def cell_weights(self) -> np.ndarray:
+        """(C,) stiffness of each lattice cell (order of cell_nodes): 1 for a cell kept whole; a
+        copy of a split cell weighs its piece's share of the cell's material (at least
+        1 / split_resolution, one layer of voxels)."""
+        return self._core.cell_weights()
+
     def __repr__(self) -> str:
         return (f"<larap.Deformer {self.num_vertices} vertices, {self.num_nodes} nodes, "
                 f"{self.num_cells} cells of {self.cell_size:.4g}, {self.weights}, {self.device}>")

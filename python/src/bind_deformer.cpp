@@ -245,6 +245,19 @@ void bind_deformer(py::module_& m) {
         if (!e.empty()) std::memcpy(a.mutable_data(), e.data(), sizeof(int32_t) * 2 * e.size());
         return a;
       })
+      .def("lattice_edge_weights", [](const PyDeformer& self) {
+        const auto& lat = self.engine.lattice();
+        py::array_t<double> a(py::ssize_t(lat.edges.size()));
+        for (size_t k = 0; k < lat.edges.size(); ++k) a.mutable_at(k) = lat.weighted() ? lat.edge_weight[k] : 1.0;
+        return a;
+      })
+      .def("cell_weights", [](const PyDeformer& self) {
+        const auto& lat = self.engine.lattice();
+        py::array_t<double> a(py::ssize_t(lat.num_cells()));
+        for (int64_t c = 0; c < lat.num_cells(); ++c)
+          a.mutable_at(c) = lat.cell_weight.empty() ? 1.0 : lat.cell_weight[size_t(c)];
+        return a;
+      })
       .def("cell_kinds", [](const PyDeformer& self) {
         const auto& k = self.engine.lattice().cell_kind;
         return py::array_t<uint8_t>(py::ssize_t(k.size()), k.data());

@@ -107,6 +107,28 @@ def test_cuda_agrees_with_cpu_when_converged(weights):
     assert abs(out["cpu_e"] - out["cuda_e"]) <= 1e-3 * out["cpu_e"] + 1e-9
 
 
+@need_cuda
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_weighted_split_lattice_agrees_with_cpu(weights):
+    """The comb of test_topology: split cells whose copies weigh their material (edge weights in
+    the rotations, the right-hand side, the energy and the system) agree on both devices."""
+    from test_topology import comb, comb_pose
+    V, F, tine_ids, _ = comb()
+    groups, T = comb_pose(V, tine_ids, moved=1)
+    out = {}
+    for dev in ("cpu", "cuda"):
+        d = larap.Deformer(V, F, cell_size=1.0, weights=weights, device=dev)
+        assert np.any(d.cell_weights() < 0.5)
+        d.set_handle_groups(groups)
+        out[dev] = d.solve(transforms=T, iterations=200)
+        E = np.array(d.stats["energy"])
+        assert np.all(np.diff(E) <= 1e-4 * E[0] + 1e-7), (dev, E)
+        out[dev + "_e"] = E[-1]
+    err = np.linalg.norm(out["cpu"] - out["cuda"], axis=1).max()
+    assert err < 1e-4 * diag(V), f"max vertex distance {err / diag(V):.3g} of the diagonal"
+    assert abs(out["cpu_e"] - out["cuda_e"]) <= 1e-3 * out["cpu_e"] + 1e-9
+
+
 @pytest.mark.parametrize("device", devices())
 def test_handles_reach_targets_like_cpu(device):
     V, F, h, nl = tube_model()

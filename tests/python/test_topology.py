@@ -55,12 +55,11 @@ def comb_pose(V, tine_ids, moved, degrees=60.0):
     return groups, np.stack(T)
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): the tines share the 4 nodes of "
-                   "their root face, whose tilt drags the neighbours 1.7% of the comb's diagonal "
-                   "(target 1%; the plain lattice: see the test below); the hand test meets it")
 @pytest.mark.parametrize("weights", ["trilinear", "bspline"])
 @pytest.mark.parametrize("levels", [1, 2, 3, 4])
 def test_comb_tine_turned_leaves_its_neighbours(weights, levels):
+    """At the tests' cell size: each tine one cell thick, its faces on cell planes, the middle
+    tine crossing two columns of cells (a sliver of it shares cells with its neighbour)."""
     V, F, tine_ids, _ = comb()
     d = larap.Deformer(V, F, cell_size=H, weights=weights, levels=levels)
     groups, T = comb_pose(V, tine_ids, moved=1)
@@ -73,6 +72,114 @@ def test_comb_tine_turned_leaves_its_neighbours(weights, levels):
     tip = groups[2]
     miss = np.linalg.norm(X[tip] - apply(T[2], V[tip]), axis=1).max()
     assert miss <= 0.03 * 6.0, miss / 6.0
+
+
+# The comb scaled to the cell: tines 1 to 4 cells thick, always 0.1 cell apart, so that the
+# tines' faces fall at every position in their cells.
+SWEEP_SIZES = tuple(np.round(np.linspace(0.25, 1.05, 17), 3))
+
+
+def comb_sweep():
+    """Per cell size h, (drag % of the diagonal, tip miss % of the tine) with the worse of the two
+    weight kinds, for the pose above on comb(gap=0.1 h), cell_size=h."""
+    if not hasattr(comb_sweep, "rows"):
+        rows = []
+        for h in SWEEP_SIZES:
+            V, F, tine_ids, _ = comb(gap=0.1 * h)
+            groups, T = comb_pose(V, tine_ids, moved=1)
+            drag = miss = 0.0
+            for weights in ("trilinear", "bspline"):
+                d = larap.Deformer(V, F, cell_size=h, weights=weights)
+                d.set_handle_groups(groups)
+                X = d.solve(transforms=T, iterations=30)
+                drag = max([drag] + [np.linalg.norm(X[tine_ids[t]] - V[tine_ids[t]], axis=1).max()
+                                     / diagonal(V) for t in (0, 2)])
+                miss = max(miss, np.linalg.norm(X[groups[2]] - apply(T[2], V[groups[2]]), axis=1).max() / 6.0)
+            rows.append((100 * drag, 100 * miss))
+        comb_sweep.rows = np.array(rows)
+    return comb_sweep.rows
+
+
+def test_comb_at_every_alignment_mostly_meets_the_target():
+    """What cell weights by material bought (2026-11-22: median 2.35 -> 1.10 %, worst 4.25 ->
+    2.69 %, 0 -> 7 of 17 sizes within 1 %): the tip always reaches its target, and the drag stays
+    within these bounds."""
+    rows = comb_sweep()
+    assert rows[:, 1].max() <= 3.0, rows[:, 1]
+    assert np.median(rows[:, 0]) <= 1.25, rows[:, 0]
+    assert rows[:, 0].max() <= 3.0, rows[:, 0]
+    assert (rows[:, 0] <= 1.0).sum() >= 6, rows[:, 0]
+
+
+@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 10 of 17 cell sizes the "
+                   "neighbours move 1.0-2.7% of the diagonal. Where the tines leave the base they "
+                   "are 0.1 cell apart, so the cells there hold the roots of two tines joined "
+                   "through the base: one piece, one set of nodes, which the turned tine tilts "
+                   "(docs/method.md, 'What splitting cannot separate'); a finer lattice only at "
+                   "such joints would (adaptive refinement, not built)")
+def test_comb_at_every_alignment_meets_the_target():
+    rows = comb_sweep()
+    assert rows[:, 0].max() <= 1.0, rows[:, 0]
+
+
+def test_split_copies_weigh_their_material():
+    """Two plates 0.3 cell thick, 0.25 apart, both inside one layer of cells: every cell they
+    cross is split in two, and each copy weighs about its plate's share of the cell (the engine
+    counts surface voxels as material: up to two voxel layers more); cells kept whole weigh 1;
+    an edge weighs the mean over the copies it is an edge of; the plain lattice weighs 1."""
+    k = 24
+    plates = [((0.05, 0.05, 0.1), (3.95, 0.95, 0.4)), ((0.05, 0.05, 0.65), (3.95, 0.95, 0.95))]
+    V, F = shapes.concat(*[shapes.box(lo, hi, 4) for lo, hi in plates])
+    d = larap.Deformer(V, F, cell_size=H, split_resolution=k)
+    w, coords, cells = d.cell_weights(), d._core.cell_coords(), d.cell_nodes()
+    _, where, count = np.unique(coords, axis=0, return_inverse=True, return_counts=True)
+    copies = count[where.ravel()]  # copies of each cell's grid cell
+    assert (copies == 2).sum() >= 8 and np.all(w[copies == 1] == 1.0)
+    origin, h = np.array(d._core.origin), d.cell_size
+    cell_of, _ = d.trilinear_binding()
+    for c in np.flatnonzero(copies == 2):
+        lo = origin + h * coords[c]
+        hi = lo + h
+        plate = {0 if V[v, 2] < 0.5 else 1 for v in np.flatnonzero(cell_of == c)}
+        assert len(plate) <= 1
+        if not plate:
+            continue
+        plo, phi = map(np.asarray, plates[plate.pop()])
+        share = np.prod(np.clip(np.minimum(hi, phi) - np.maximum(lo, plo), 0, None)) / h ** 3
+        assert share - 0.5 / k <= w[c] <= share + 2.5 / k * (1 + 4 * share), (c, w[c], share)
+    # edges: the mean over the copies they belong to
+    acc = {}
+    for c, cn in enumerate(cells):
+        for a in range(8):
+            for axis in range(3):
+                if not (a >> axis) & 1:
+                    key = tuple(sorted((cn[a], cn[a | 1 << axis])))
+                    acc.setdefault(key, []).append(w[c])
+    E, ew = d.lattice_edges(), d.lattice_edge_weights()
+    expect = np.array([np.mean(acc[tuple(sorted(e))]) for e in E])
+    assert np.allclose(ew, expect, rtol=1e-12, atol=0)
+    plain = larap.Deformer(V, F, cell_size=H, split_cells=False)
+    assert np.all(plain.cell_weights() == 1.0) and np.all(plain.lattice_edge_weights() == 1.0)
+
+
+def test_weighted_lattice_keeps_rest_rigid_and_descent():
+    """On the comb's weighted lattice: targets at rest give the rest pose, one rigid motion of
+    every handle gives that motion, and the energy never increases."""
+    V, F, tine_ids, _ = comb()
+    d = larap.Deformer(V, F, cell_size=H)
+    assert np.any(d.cell_weights() < 0.5)
+    groups, T = comb_pose(V, tine_ids, moved=1)
+    d.set_handle_groups(groups)
+    X = d.solve(transforms=np.stack([np.eye(4)] * len(groups)), iterations=5)
+    tol = 1e-4 if d.device == "cuda" else 1e-7  # the device solves in float
+    assert np.abs(X - V).max() <= tol * diagonal(V)
+    M = affine(rotation([1, 2, 3], 50), pivot=(1.0, 1.0, 0.5))
+    X = d.solve(transforms=np.stack([M] * len(groups)), iterations=5)
+    assert np.abs(X - apply(M, V)).max() <= tol * diagonal(V)
+    d.reset()
+    d.solve(transforms=T, iterations=30)
+    E = np.array(d.stats["energy"])
+    assert np.all(np.diff(E) <= tol * E[0]), E
 
 
 def test_without_splitting_the_tines_move_together():

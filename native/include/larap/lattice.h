@@ -70,6 +70,12 @@ class Lattice {
   std::vector<Eigen::Vector3i> cell_coords;   // #C integer coordinates of kept cells (may repeat)
   std::vector<std::array<int32_t, 8>> cell_nodes;  // #C corner node ids, corner c = (c&1, c>>1&1, c>>2)
   std::vector<uint8_t> cell_kind;             // #C bit 1 surface, 2 inside, 4 vertex
+  // Stiffness of each copy (empty: all 1, the plain lattice). A copy of a split cell carries its
+  // piece's share of the cell's material (material voxels / split_resolution^3, at least one
+  // voxel layer, 1 / split_resolution): a sliver of a finger that crosses a cell corner is as
+  // stiff as the material it holds, not as a whole cell (the elasticity of Nesme et al. 2009).
+  // Cells kept whole, and every cell of a coarser level, weigh 1.
+  std::vector<double> cell_weight;
 
   // ------------------------------------------------------------------ nodes
   // Real nodes first (corners of kept cells, in grid order, copies at one point consecutive), then
@@ -79,6 +85,11 @@ class Lattice {
   std::vector<int32_t> adj_offsets;           // #N+1 CSR offsets of the edge neighbourhood
   std::vector<int32_t> adj;                   // neighbour node ids, sorted per node
   std::vector<std::array<int32_t, 2>> edges;  // #E undirected edges (i < j), real nodes only
+  // Edge weights (empty when every cell weighs 1): an edge weighs the mean of cell_weight over
+  // the copies it is an edge of, so edges of cells kept whole weigh 1 as on the plain lattice.
+  // The ARAP energy is sum_i sum_j w_ij |(p_i - p_j) - R_i (c_i - c_j)|^2 (docs/method.md).
+  std::vector<double> edge_weight;            // #E, parallel to edges
+  std::vector<double> adj_weight;             // parallel to adj
   std::vector<int32_t> component;             // #N connected component id of each node
   int32_t num_components = 0;
   int32_t real_nodes = 0;                     // nodes [0, real_nodes) are real
@@ -99,6 +110,7 @@ class Lattice {
   int64_t num_nodes() const { return static_cast<int64_t>(node_coords.size()); }
   int64_t num_real_nodes() const { return real_nodes; }
   int64_t num_shell_nodes() const { return num_nodes() - real_nodes; }
+  bool weighted() const { return !edge_weight.empty(); }
 
   // The lowest node id at integer grid coordinates, or -1 if no kept cell has that corner. With
   // split cells a point may hold several nodes: use cell_nodes of the right copy instead.

@@ -115,7 +115,7 @@ __device__ __forceinline__ double handle_energy(const System& s, int i) {
   return double(xi.x) * (mx - 2.0 * h[0]) + double(xi.y) * (my - 2.0 * h[1]) + double(xi.z) * (mz - 2.0 * h[2]);
 }
 
-// The ARAP part of row i of the right-hand side, g sum_j (R_i + R_j)(c_i - c_j), over the slots
+// The ARAP part of row i of the right-hand side, g sum_j w_ij (R_i + R_j)(c_i - c_j), over the slots
 // and the extra neighbours.
 __device__ __forceinline__ float4 arap_rhs_at(const System& s, const SlotEdges& edges, int i) {
   float Ri[9];
@@ -132,7 +132,7 @@ __device__ __forceinline__ float4 arap_rhs_at(const System& s, const SlotEdges& 
   return b;
 }
 
-// Row i of the right-hand side: g sum_j (R_i + R_j)(c_i - c_j) + H_i + a c_i [anchored]
+// Row i of the right-hand side: g sum_j w_ij (R_i + R_j)(c_i - c_j) + H_i + a c_i [anchored]
 // (H = B^T alpha t, centred: handle_system.h). For the experiments' solvers, which need b itself.
 __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
   const SlotEdges edges(s, i);

@@ -3,7 +3,7 @@
 // needs of them precomputed, how strongly the ARAP term weighs against the handles (gamma_eff),
 // and which nodes are held at rest because their lattice component has no handle.
 //
-//   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} |(c'_i - c'_j) - R_i (c_i - c_j)|^2
+//   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} w_ij |(c'_i - c'_j) - R_i (c_i - c_j)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
 //
 // Rows come in groups g = 1..G (a vertex group driven by one transform). Row j of group g pulls
@@ -11,9 +11,12 @@
 // (default 1) whatever its size, and inside a group the vertex weights omega (default 1) spread
 // that pull. set_handles(ids) is G = m groups of one vertex, so alpha_j = 1/m.
 //
-// Scale-free gamma (docs/method.md): E = gamma * s^2 * mean_e(|r_e|^2 / h^2) + handle term, with
-// s the radius of gyration of the rest vertices, so gamma_eff = gamma * s^2 / (h^2 * #directed
-// edges). The same definition on every level of a hierarchy makes the levels solve one problem.
+// (w_ij: the lattice's edge weights, 1 except on the edges of split cells; lattice.h.)
+// Scale-free gamma (docs/method.md): E = gamma * s^2 * wmean_e(|r_e|^2 / h^2) + handle term, with
+// s the radius of gyration of the rest vertices, so gamma_eff = gamma * s^2 / (h^2 * sum of the
+// directed edges' weights). The same definition on every level of a hierarchy makes the levels
+// solve one problem, up to the fine level's weights (coarser levels weigh every edge 1: they only
+// give the fine level its starting pose).
 //
 // Per pose nothing costs in proportion to the handle vertices. With M = B^T diag(alpha) B (fixed
 // per handle set) and, in coordinates centred at `origin` (x~ = x - origin, which keeps the sums

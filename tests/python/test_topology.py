@@ -135,6 +135,7 @@ def test_split_copies_weigh_their_material():
     _, where, count = np.unique(coords, axis=0, return_inverse=True, return_counts=True)
     copies = count[where.ravel()]  # copies of each cell's grid cell
     assert (copies == 2).sum() >= 8 and np.all(w[copies == 1] == 1.0)
+    assert np.all(w >= 1.0 / k - 1e-15) and np.all(w <= 1.0)  # at least one layer of voxels
     origin, h = np.array(d._core.origin), d.cell_size
     cell_of, _ = d.trilinear_binding()
     for c in np.flatnonzero(copies == 2):
@@ -162,11 +163,14 @@ def test_split_copies_weigh_their_material():
     assert np.all(plain.cell_weights() == 1.0) and np.all(plain.lattice_edge_weights() == 1.0)
 
 
-def test_weighted_lattice_keeps_rest_rigid_and_descent():
+@pytest.mark.parametrize("device", [
+    "cpu", pytest.param("cuda", marks=pytest.mark.skipif("cuda" not in larap.available_devices(),
+                                                         reason="no usable CUDA device/build"))])
+def test_weighted_lattice_keeps_rest_rigid_and_descent(device):
     """On the comb's weighted lattice: targets at rest give the rest pose, one rigid motion of
     every handle gives that motion, and the energy never increases."""
     V, F, tine_ids, _ = comb()
-    d = larap.Deformer(V, F, cell_size=H)
+    d = larap.Deformer(V, F, cell_size=H, device=device)
     assert np.any(d.cell_weights() < 0.5)
     groups, T = comb_pose(V, tine_ids, moved=1)
     d.set_handle_groups(groups)

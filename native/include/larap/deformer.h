@@ -8,8 +8,9 @@
 //   d.solve(targets, 5, out);           // targets: #handles by 3
 //
 // Energy (scale-free gamma, see docs/method.md):
-//   E = gamma * s^2 * mean_edges(|r_e|^2 / h^2) + sum_groups (w_g / G) * wmean_{j in g} |B_j c' - t_j|^2
-// where r_e is the ARAP residual of a directed lattice edge, h the cell size, s the radius of
+//   E = gamma * s^2 * wmean_edges(|r_e|^2 / h^2) + sum_groups (w_g / G) * wmean_{j in g} |B_j c' - t_j|^2
+// where r_e is the ARAP residual of a directed lattice edge (weighted by the edge's weight, 1
+// except on the edges of split cells: lattice.h), h the cell size, s the radius of
 // gyration of the rest vertices, w_g a group's weight and wmean the mean over its vertices
 // weighted by the vertex weights. The same gamma behaves the same at any model scale, lattice
 // resolution and handle count, and a group pulls with its own weight whatever its size.

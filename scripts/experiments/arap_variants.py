@@ -281,9 +281,38 @@ def winding_inside(V, tris):
 CELL_EDGES = [(0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7)]
 
 
-def terms(lat: Lat, rotations="node", cw=None, floor=1e-3):
+def split_copy_weights(lat: Lat, masks, floor=0.05):
+    """(C,) the engine's rule with these masks: a copy of a split cell weighs its material
+    fraction (at least `floor`), every other cell 1."""
+    frac = masks.reshape(len(masks), -1).mean(1)
+    by_coord = {}
+    for c, cc in enumerate(lat.cell_coords):
+        by_coord.setdefault(tuple(cc), []).append(c)
+    w = np.ones(len(lat.cells))
+    for copies in by_coord.values():
+        if len(copies) > 1:
+            w[copies] = np.maximum(frac[copies], floor)
+    return w
+
+
+def mean_over_copies(lat: Lat, wc):
+    """(E,) the engine's edge rule: an edge weighs the mean of wc over the copies it is an edge of."""
+    acc = {}
+    for c, cn in enumerate(lat.cells):
+        for a, b in CELL_EDGES:
+            acc.setdefault((min(cn[a], cn[b]), max(cn[a], cn[b])), []).append(wc[c])
+    return np.array([np.mean(acc[(min(u, v), max(u, v))]) for u, v in lat.edges])
+
+
+def terms(lat: Lat, rotations="node", cw=None, floor=1e-3, edge_w=None):
     """(i, k, w, r) arrays of the energy terms and the number of rotations; cw: (C, 12) weights
-    of the copies' edges (None: 1), floored at `floor`."""
+    of the copies' edges (None: 1), floored at `floor`; edge_w: (E,) weights of the lattice's
+    edges for node rotations (the engine's rule: mean_over_copies), instead of cw."""
+    if edge_w is not None and rotations == "node":
+        E = lat.edges
+        i = np.concatenate([E[:, 0], E[:, 1]])
+        k = np.concatenate([E[:, 1], E[:, 0]])
+        return i, k, np.concatenate([edge_w, edge_w]), i.copy(), lat.nr
     unit = cw is None
     cw = np.ones((len(lat.cells), 12)) if unit else np.maximum(cw, floor)
     if rotations == "node":
@@ -327,9 +356,10 @@ def best_rotations(S):
 
 
 class Solver:
-    def __init__(self, lat: Lat, handle_rows, alpha, gamma=0.1, rotations="node", cw=None, floor=1e-3):
+    def __init__(self, lat: Lat, handle_rows, alpha, gamma=0.1, rotations="node", cw=None, floor=1e-3,
+                 edge_w=None):
         self.lat = lat
-        self.i, self.k, self.w, self.r, self.nrot = terms(lat, rotations, cw, floor)
+        self.i, self.k, self.w, self.r, self.nrot = terms(lat, rotations, cw, floor, edge_w)
         self.e = lat.rest[self.i] - lat.rest[self.k]
         self.geff = gamma * lat.s ** 2 / (lat.h ** 2 * self.w.sum())
         n = lat.nr

@@ -15,7 +15,7 @@ sys.path[:0] = [HERE, os.path.join(REPO, "python"), os.path.join(REPO, "tests", 
 
 import larap  # noqa: E402
 from arap_variants import (Lat, Solver, group_alpha, group_targets, transfer, material_masks,  # noqa: E402
-                           cell_weights, boxes_inside)
+                           cell_weights, boxes_inside, split_copy_weights, mean_over_copies)
 from conftest import diagonal, rotation, triangles, volume  # noqa: E402
 from test_topology import comb, comb_pose, apply, affine, bars, bend_first_pin_second  # noqa: E402
 from test_deformer import bend_setup  # noqa: E402
@@ -42,24 +42,35 @@ VARIANTS = {
     "node+frac floor.001": ("node", "fraction", 1e-3),
     "cell+frac floor.001": ("cell", "fraction", 1e-3),
     "cell+quadrant floor.001": ("cell", "quadrant", 1e-3),
+    # material on the copies of split cells only (1 elsewhere): the rule the engine adopted
+    "node+split material": ("node", "split", 0.05),
+    "cell+split material": ("cell", "split", 0.05),
 }
 
 
 def make(lat, rows, alpha, variant, masks):
     rot, mode, floor = VARIANTS[variant]
+    if mode == "split":
+        wc = split_copy_weights(lat, masks, floor)
+        if rot == "node":
+            return Solver(lat, rows, alpha, edge_w=mean_over_copies(lat, wc))
+        return Solver(lat, rows, alpha, rotations="cell", cw=np.repeat(wc[:, None], 12, 1), floor=0.0)
     cw = None if mode is None else cell_weights(masks, mode)
     return Solver(lat, rows, alpha, rotations=rot, cw=cw, floor=floor)
 
 
-def run_comb(variant, h=1.0, caches={}):
-    cache = caches.setdefault(h, {})
+def run_comb(variant, h=1.0, caches={}, scaled=False):
+    """scaled: the comb's gap is 0.1 h (the tests' comb_sweep: tines 1/h cells thick, always 0.1
+    cell apart) instead of 0.1."""
+    cache = caches.setdefault((h, scaled), {})
     if "lat" not in cache:
-        V, F, tine_ids, _ = comb()
+        gap = 0.1 * h if scaled else 0.1
+        V, F, tine_ids, _ = comb(gap=gap)
         d = larap.Deformer(V, F, cell_size=h, weights="bspline")
         groups, T = comb_pose(V, tine_ids, moved=1)
         lat = Lat(d, V)
         cache.update(V=V, tine_ids=tine_ids, groups=groups, T=T, lat=lat,
-                     masks=material_masks(lat, boxes_inside(comb_boxes())))
+                     masks=material_masks(lat, boxes_inside(comb_boxes(gap=gap))))
     c = cache
     V, groups, T, lat = c["V"], c["groups"], c["T"], c["lat"]
     rows, alpha = group_alpha(groups)
@@ -146,21 +157,29 @@ def run_hand(variant, cache={}):
     return out
 
 
-def sweep(names, sizes=(0.9, 0.95, 1.05, 1.1)):
+def sweep(names, sizes=(0.9, 0.95, 1.05, 1.1), scaled=False):
     """The comb at other cell sizes (the tests' h = 1 is a favourable alignment)."""
-    print("comb drag % (trilinear / bspline) and tip miss % (bspline) by cell size")
-    print("variant | " + " | ".join(f"h={h}" for h in sizes))
+    print("comb drag % (trilinear / bspline) and tip miss % (bspline) by cell size"
+          + (", gap 0.1 h" if scaled else ""))
+    print("variant | " + " | ".join(f"h={h}" for h in sizes) + (" | median, worst, within 1 %" if scaled else ""))
     for v in names:
-        cols = []
+        cols, worst = [], []
         for h in sizes:
-            c = run_comb(v, h)
+            c = run_comb(v, h, scaled=scaled)
+            worst.append(max(c[0], c[2]))
             cols.append(f"{c[0]:.2f} / {c[2]:.2f}, miss {c[3]:.2f}")
+        if scaled:
+            cols.append(f"{np.median(worst):.2f}, {max(worst):.2f}, {sum(w <= 1.0 for w in worst)}/{len(worst)}")
         print(f"{v} | " + " | ".join(cols), flush=True)
 
 
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--sweep"]:
         sweep(sys.argv[2:] or list(VARIANTS))
+        sys.exit(0)
+    if sys.argv[1:2] == ["--scaled"]:  # the comb scaled to the cell at the tests' 17 sizes
+        ITER = 100
+        sweep(sys.argv[2:] or list(VARIANTS), tuple(np.round(np.linspace(0.25, 1.05, 17), 3)), scaled=True)
         sys.exit(0)
     names = sys.argv[1:] or list(VARIANTS)
     print(f"{ITER} flip-flop iterations from rest (bars: 5); % of the comb's diagonal / tine length")

@@ -141,12 +141,7 @@ def step():
         return 0.1
     if k == 4:
         STATE["blender"] = redraw_and_shoot("3_caught_up_blender")
-        rt = core.runtime(obj)
-        # The preview of the same lattice pose that the mesh now holds.
-        rt.lattice_nodes = np.asarray(rt.deformer.lattice_deformed(), dtype=np.float32)
-        rt.pose_version += 1
-        res["shown_again"] = preview.show(obj)
-        catchup.cancel_timer()  # shown by hand: the catch-up timer must not end it before the shot
+        res["shown_again"] = preview_mesh_pose(obj)
         return 0.1
     if k == 5:
         prev = redraw_and_shoot("4_same_pose_preview")
@@ -176,11 +171,7 @@ def step():
         return 0.1
     if k == 7:
         STATE["blender_flat"] = redraw_and_shoot("5_flat_blender")
-        rt = core.runtime(obj)
-        rt.lattice_nodes = np.asarray(rt.deformer.lattice_deformed(), dtype=np.float32)
-        rt.pose_version += 1
-        res["flat_shown"] = preview.blocker(obj) == "" and preview.show(obj)
-        catchup.cancel_timer()
+        res["flat_shown"] = preview.blocker(obj) == "" and preview_mesh_pose(obj)
         return 0.1
     if k == 8:
         blender = STATE["blender_flat"]
@@ -205,6 +196,18 @@ def step():
         finish()
         return None
     return None
+
+
+def preview_mesh_pose(obj):
+    """Show the preview of the lattice pose that the mesh now holds (by hand: the catch-up timer
+    must not end it before the shot). True when it shows."""
+    from larap_blender import catchup, core, preview
+    rt = core.runtime(obj)
+    rt.lattice_nodes = np.asarray(rt.deformer.lattice_deformed(), dtype=np.float32)
+    rt.pose_version += 1
+    shown = preview.show(obj)
+    catchup.cancel_timer()
+    return shown
 
 
 def finish():

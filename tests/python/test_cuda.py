@@ -257,20 +257,25 @@ def test_unfused_graph_path_agrees_with_cpu(monkeypatch):
 
 
 @need_cuda
-def test_fused_matches_unfused_energies(monkeypatch):
+@pytest.mark.parametrize("gamma", [0.1, 0.03])
+def test_fused_matches_unfused_energies(monkeypatch, gamma):
     """The fused cooperative kernel computes the same flip-flops as the per-kernel graph
-    (energies per flip-flop, incl. across its 64-flip-flop launch chunks)."""
+    (energies per flip-flop, incl. across its 64-flip-flop launch chunks). Both run in single
+    precision with one or two inexact inner steps per flip-flop, so their rounding differs while
+    the pose moves most (measured 2026-11-22, H100: 3e-4 at gamma 0.1, 1.5e-3 at 0.03 in the
+    first ten flip-flops), and they meet at the same pose (below 2e-7 from the fortieth on)."""
     V, F, h, nl = tube_model()
     T = bend_targets(V, h, nl)
     E = {}
     for fused in ("1", "0"):
         monkeypatch.setenv("LARAP_CUDA_FUSED", fused)
-        d = larap.Deformer(V, F, cells=1500, device="cuda")
+        d = larap.Deformer(V, F, cells=1500, device="cuda", gamma=gamma)
         d.set_handles(h)
         d.solve(T, iterations=130)
         E[fused] = np.array(d.stats["energy"])
     assert len(E["1"]) == 130 and np.all(np.isfinite(E["1"]))
-    assert np.allclose(E["1"], E["0"], rtol=1e-3, atol=1e-9), np.abs(E["1"] / E["0"] - 1).max()
+    rel = np.abs(E["1"] / E["0"] - 1)
+    assert rel.max() < 5e-3 and rel[40:].max() < 1e-6, (rel[:10].max(), rel[40:].max())
 
 
 FAIL_ALLOC = "LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES"

@@ -102,19 +102,20 @@ def comb_sweep():
 
 def test_comb_at_every_alignment_mostly_meets_the_target():
     """What cell weights by material bought (2026-11-22: median 2.35 -> 1.10 %, worst 4.25 ->
-    2.69 %, 0 -> 7 of 17 sizes within 1 %): the tip always reaches its target, and the drag stays
-    within these bounds."""
+    2.69 %, 0 -> 7 of 17 sizes within 1 %) and the stiffer default handles after them (gamma 0.1
+    -> 0.03: median 0.95 %, worst 2.37 %, 11 of 17): the tip always reaches its target, and the
+    drag stays within these bounds."""
     rows = comb_sweep()
     assert rows[:, 1].max() <= 3.0, rows[:, 1]
-    assert np.median(rows[:, 0]) <= 1.25, rows[:, 0]
-    assert rows[:, 0].max() <= 3.0, rows[:, 0]
-    assert (rows[:, 0] <= 1.0).sum() >= 6, rows[:, 0]
+    assert np.median(rows[:, 0]) <= 1.0, rows[:, 0]
+    assert rows[:, 0].max() <= 2.6, rows[:, 0]
+    assert (rows[:, 0] <= 1.0).sum() >= 10, rows[:, 0]
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 10 of 17 cell sizes the "
-                   "neighbours move 1.0-2.7% of the diagonal. Where the tines leave the base they "
-                   "are 0.1 cell apart, so the cells there hold the roots of two tines joined "
-                   "through the base: one piece, one set of nodes, which the turned tine tilts "
+@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 6 of 17 cell sizes the "
+                   "neighbours move 1.1-2.4% of the diagonal. The cells where the tines leave the "
+                   "base are as coarse as a tine is thick: the row of them bends with the turned "
+                   "tine and tilts its neighbours' roots, whether or not the tines share a cell "
                    "(docs/method.md, 'What splitting cannot separate'); a finer lattice only at "
                    "such joints would (adaptive refinement, not built)")
 def test_comb_at_every_alignment_meets_the_target():

@@ -37,7 +37,7 @@ constexpr int kMaxIterations = 100000;    // solve(..., iterations) is in [0, kM
 struct DeformerOptions {
   LatticeOptions lattice;                       // resolution and memory limit of the lattice
   WeightKind weights = WeightKind::Trilinear;   // vertex binding used by solve()
-  double gamma = 0.1;                           // rigidity, scale-free (> 0)
+  double gamma = 0.03;                          // rigidity, scale-free (> 0; docs/method.md)
   std::string device = "cpu";                   // "cpu" | "cuda" | "auto"
   int levels = 1;                               // lattice levels solved coarse to fine; 1 = fine only
 };

@@ -23,6 +23,7 @@ from bpy.app.handlers import persistent
 
 from . import catchup, preview
 from .errors import LarapError
+from .props import upgrade_settings
 from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
 from .session import dragging
 from .solving import key_up_to_date, solve
@@ -205,7 +206,12 @@ def larap_load_pre(*_args):
 def larap_load_post(*_args):
     """A new file: pointers and data changed; engines are rebuilt lazily from the stored settings.
     Objects saved hidden behind a preview (an autosave) are shown again, and live meshes whose
-    pose key was saved behind their targets catch up; an up-to-date file is left as it is."""
+    pose key was saved behind their targets catch up; an up-to-date file is left as it is.
+    Settings stored by an older version are brought up to date first, keeping their pose
+    (props.upgrade_settings), so that the catch-up compares like with like."""
+    for obj in list(bpy.data.objects):
+        if obj.type == "MESH":
+            upgrade_settings(obj.larap)
     drop_runtime()
     preview.reset_all()
     catchup.after_load()

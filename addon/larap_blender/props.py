@@ -1,5 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Settings stored in the .blend (``Object.larap``) and the add-on preferences."""
+import struct
+
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
                        FloatVectorProperty, IntProperty, PointerProperty, StringProperty)
@@ -19,6 +21,34 @@ DEVICE_ITEMS = [
     ("auto", "Auto", "CUDA when available, else CPU"),
 ]
 PREF_DEVICE_ITEMS = [item for item in DEVICE_ITEMS if item[0] != "DEFAULT"]
+
+
+# Format of the settings stored on an object. 1 (2026-11-22): Stiffness's default went from 0.1 to
+# 0.03, which holds handles (and the parts they pin) two to three times closer to their targets
+# (docs/method.md, "Energy and the meaning of γ"). An unset property is not stored in the .blend, so
+# an object bound before, whose Stiffness was never changed, would read the new default and pose
+# differently: upgrade_settings gives it its old value instead.
+SETTINGS_VERSION = 1
+GAMMA = 0.03
+GAMMA_BEFORE_1 = 0.1
+
+
+def upgrade_settings(s):
+    """Brings an object's settings (``obj.larap``) to SETTINGS_VERSION without changing how it
+    poses, and returns the Stiffness to solve with. Called on load and wherever an engine is given
+    the Stiffness (so appended objects are upgraded too); where this context may not write the
+    object (drawing), it still returns the value the upgrade would store."""
+    if s.settings_version >= SETTINGS_VERSION:
+        return float(s.gamma)
+    older_default = s.bound and not s.is_property_set("gamma")
+    try:
+        if older_default:
+            s.gamma = GAMMA_BEFORE_1
+        s.settings_version = SETTINGS_VERSION
+    except (AttributeError, RuntimeError):  # "Writing to ID classes in this context is not allowed"
+        if older_default:  # the value as the property would store it (single precision)
+            return struct.unpack("f", struct.pack("f", GAMMA_BEFORE_1))[0]
+    return float(s.gamma)
 
 
 def _redraw(self, context):
@@ -103,7 +133,7 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
     weights_final: EnumProperty(name="Final", items=WEIGHT_ITEMS, default="bspline",
                                 description="How the mesh follows the lattice for the result: Solve, a confirmed "
                                 "drag, Bake and Apply (Smooth has no creases)")
-    gamma: FloatProperty(name="Stiffness", default=0.1, min=1e-6, soft_max=10.0, update=_redraw,
+    gamma: FloatProperty(name="Stiffness", default=GAMMA, min=1e-6, soft_max=10.0, update=_redraw,
                          description="How much the mesh resists bending and stretching against the pull of the "
                          "handles. Higher: stiffer, handles lag behind their targets; lower: handles are "
                          "followed closely and the rest bends more. Does not depend on the mesh's size")
@@ -130,6 +160,8 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
     handles: CollectionProperty(type=LARAP_PG_handle)
     active_handle: IntProperty(name="Active Handle", default=0, min=0)
     # Recorded at bind: detects a topology change.
+    settings_version: IntProperty(default=0, options={"HIDDEN"},
+                                  description="Format of these settings (upgrade_settings); 0: older than 1")
     bind_vertex_count: IntProperty(default=0)
     bind_topology: StringProperty(default="", description="Hash of the face topology at bind")
     created_basis: BoolProperty(default=False, description="Bind created the Basis shape key")

@@ -19,6 +19,7 @@ import numpy as np
 
 from .errors import TopologyChanged, engine_errors, require_engine
 from .mesh_data import array_hash, polygons, rest_positions, topology_arrays, topology_hash
+from .props import upgrade_settings
 from .targets import target_signature
 
 
@@ -242,7 +243,7 @@ def _new_runtime(obj, rest, faces):
     recorded), not yet registered."""
     mod = require_engine()
     s = obj.larap
-    gamma, weights = float(s.gamma), s.weights_interactive
+    gamma, weights = upgrade_settings(s), s.weights_interactive
     kwargs = dict(gamma=gamma, device=resolve_device(s), weights=weights)
     if s.resolution_mode == "CELLS":
         kwargs["cells"] = int(s.cells)

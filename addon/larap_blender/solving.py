@@ -29,6 +29,7 @@ import numpy as np
 from . import preview
 from .errors import check_object, engine_errors
 from .mesh_data import key_positions, write_pose
+from .props import upgrade_settings
 from .runtime import ensure_runtime, resolve_device, runtime
 from .targets import gather, membership, target_signature
 
@@ -48,7 +49,7 @@ def pose_signature(obj):
     h.update(repr(target_signature(obj)).encode())
     h.update(repr([(x.vertex_group, x.enabled, x.has_rest, x.subtarget, tuple(x.rest_matrix), float(x.weight))
                    for x in s.handles]).encode())
-    h.update(repr((s.weights_final, float(s.gamma), int(s.iterations), s.resolution_mode, int(s.cells),
+    h.update(repr((s.weights_final, upgrade_settings(s), int(s.iterations), s.resolution_mode, int(s.cells),
                    float(s.cell_size), bool(s.split_cells), s.bind_topology, s.shape_key,
                    resolve_device(s))).encode())
     rt = runtime(obj)
@@ -128,7 +129,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
             np.copyto(rt.out, rt.rest)
             rt.lattice_nodes = None
         else:
-            rt.set_engine_state(pose, wname, float(s.gamma))
+            rt.set_engine_state(pose, wname, upgrade_settings(s))
             if final:
                 # One pose per set of targets: from rest, to convergence (up to 10x the
                 # interactive iterations), so the same targets always give the same pose.

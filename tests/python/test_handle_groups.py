@@ -140,8 +140,10 @@ def test_zero_vertex_weights_are_not_handles(tube, device):
     a.set_handle_groups(groups, vertex_weights=[np.ones(len(groups[0])), vw1])
     b = larap.Deformer(V, F, cells=800, device=device)
     b.set_handle_groups([groups[0], kept])
-    Xa = a.solve(transforms=T, iterations=20)
-    Xb = b.solve(transforms=T, iterations=20)
+    # Enough flip-flops that both reach the pose: on the device, single-precision rounding differs
+    # with the handle rows and moves the path there (1.1e-4 of the diagonal after 20 at gamma 0.03).
+    Xa = a.solve(transforms=T, iterations=60)
+    Xb = b.solve(transforms=T, iterations=60)
     assert np.abs(Xa - Xb).max() <= tol(device, 1e-9, 1e-4) * diagonal(V)
 
 

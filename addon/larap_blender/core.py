@@ -23,6 +23,7 @@ from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, check_object, en
 from .handlers import live_suspended, live_update, suspend_live
 from .mesh_data import (apply_offsets, ensure_pose_key, key_positions, remove_pose_key, rest_positions,
                         selected_vertices, topology_hash, polygons, vertex_group_weights, write_pose)
+from .props import upgrade_settings
 from .runtime import (_RUNTIMES, Runtime, after_undo, build_runtime, drop_runtime, ensure_runtime,
                       prune_runtimes, resolve_device, runtime)
 from .session import PoseSession, handle_points
@@ -83,6 +84,8 @@ def _bind(obj, keep_pose, p):
     p.step(0)
     rt = build_runtime(obj)  # the long part: the lattice and its factorisation
     p.step(1)
+    # Stored explicitly (an unset property is not saved): a later default leaves this bind alone.
+    s.gamma = upgrade_settings(s)
     s.bind_vertex_count = len(me.vertices)
     s.bind_topology = rt.topology
     for h in s.handles:

@@ -23,7 +23,7 @@ from bpy.app.handlers import persistent
 
 from . import catchup, preview
 from .errors import LarapError
-from .props import upgrade_settings
+from .props import SETTINGS_VERSION, upgrade_settings
 from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
 from .session import dragging
 from .solving import key_up_to_date, solve
@@ -147,6 +147,8 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
                 continue
     except ReferenceError:
         return
+    if objects:  # an object appended from an older file shows and solves with its own Stiffness
+        upgrade_all_settings(objects)
     if meshes:
         preview.meshes_changed(meshes)
     if live_suspended():
@@ -202,6 +204,17 @@ def larap_load_pre(*_args):
     preview.reset_all()
 
 
+def upgrade_all_settings(objects=None):
+    """props.upgrade_settings for every mesh object of ``objects`` (default: the file's); one
+    that fails is reported and skipped. Never raises."""
+    for obj in list(bpy.data.objects) if objects is None else objects:
+        try:
+            if obj.type == "MESH" and obj.larap.settings_version < SETTINGS_VERSION:
+                upgrade_settings(obj.larap)
+        except Exception as exc:  # a handler must never raise
+            print("LARAP: could not bring the settings of %r up to date: %s" % (getattr(obj, "name", "?"), exc))
+
+
 @persistent
 def larap_load_post(*_args):
     """A new file: pointers and data changed; engines are rebuilt lazily from the stored settings.
@@ -209,9 +222,7 @@ def larap_load_post(*_args):
     pose key was saved behind their targets catch up; an up-to-date file is left as it is.
     Settings stored by an older version are brought up to date first, keeping their pose
     (props.upgrade_settings), so that the catch-up compares like with like."""
-    for obj in list(bpy.data.objects):
-        if obj.type == "MESH":
-            upgrade_settings(obj.larap)
+    upgrade_all_settings()
     drop_runtime()
     preview.reset_all()
     catchup.after_load()
@@ -224,6 +235,7 @@ def larap_undo_post(*_args):
     shown again; live meshes whose restored pose key is behind their restored targets catch up
     (the same targets give the same pose, so undo shows the caught-up pose)."""
     after_undo()
+    upgrade_all_settings()  # a step stored before an older object's upgrade
     refresh_warnings_after_undo()
     preview.reset_all()
     with suspend_live():

@@ -36,8 +36,10 @@ GAMMA_BEFORE_1 = 0.1
 def upgrade_settings(s):
     """Brings an object's settings (``obj.larap``) to SETTINGS_VERSION without changing how it
     poses, and returns the Stiffness to solve with. Called on load and wherever an engine is given
-    the Stiffness (so appended objects are upgraded too); where this context may not write the
-    object (drawing), it still returns the value the upgrade would store."""
+    the Stiffness (so appended objects are upgraded too), and for the objects a depsgraph update
+    or an undo reports; where this context may not write the object (drawing), it still returns
+    the value the upgrade would store. Bind stores the Stiffness explicitly, so a later change of
+    the default leaves bound objects as they are."""
     if s.settings_version >= SETTINGS_VERSION:
         return float(s.gamma)
     older_default = s.bound and not s.is_property_set("gamma")
@@ -45,7 +47,11 @@ def upgrade_settings(s):
         if older_default:
             s.gamma = GAMMA_BEFORE_1
         s.settings_version = SETTINGS_VERSION
-    except (AttributeError, RuntimeError):  # "Writing to ID classes in this context is not allowed"
+    except (AttributeError, RuntimeError) as exc:
+        # a context that may not write data ("Writing to ID classes in this context is not
+        # allowed"), or a read-only (linked) object: solve with what the upgrade would store
+        if "not allowed" not in str(exc) and "read-only" not in str(exc):
+            raise
         if older_default:  # the value as the property would store it (single precision)
             return struct.unpack("f", struct.pack("f", GAMMA_BEFORE_1))[0]
     return float(s.gamma)

@@ -59,15 +59,15 @@ def _reload(path):
     return bpy.data.objects["Bar"]
 
 
-def test_a_file_bound_before_the_stiffness_default_changed_poses_as_before(core, tmp_path):
-    """Stiffness's default went from 0.1 to 0.03 (settings version 1). Blender does not store an
-    unset property, so an object bound by an older version whose Stiffness was never changed
-    would read the new default: it keeps 0.1 (stored explicitly on load), and poses as it did."""
+def _old_file(core, tmp_path):
+    """A bar bound and posed at Stiffness 0.1, saved as an add-on version before settings version
+    1 saved it (Stiffness never changed: not stored; no version). Returns (path, pose, rest)."""
     from larap_blender import props
     obj, rest, left, right, targets = bar_with_handles(core)
     s = obj.larap
-    assert abs(s.gamma - props.GAMMA) < 1e-7 and s.settings_version == props.SETTINGS_VERSION
-    s.gamma = props.GAMMA_BEFORE_1  # the old default, then stored as an old version stored it
+    assert s.is_property_set("gamma") and abs(s.gamma - props.GAMMA) < 1e-7  # bind stores it
+    assert s.settings_version == props.SETTINGS_VERSION
+    s.gamma = props.GAMMA_BEFORE_1
     targets[1].location.z += 0.5
     assert bpy.ops.larap.solve() == {"FINISHED"}
     pose = coords(obj, "LARAP")
@@ -76,33 +76,79 @@ def test_a_file_bound_before_the_stiffness_default_changed_poses_as_before(core,
     assert abs(s.gamma - props.GAMMA) < 1e-7 and s.settings_version == 0
     path = str(tmp_path / "old.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
+    return path, pose, rest
 
+
+def test_a_file_bound_before_the_stiffness_default_changed_poses_as_before(core, tmp_path):
+    """Stiffness's default went from 0.1 to 0.03 (settings version 1). Blender does not store an
+    unset property, so an object bound by an older version whose Stiffness was never changed
+    would read the new default: it keeps 0.1 (stored explicitly on load), its saved pose is left
+    as it is, and it poses as it did."""
+    from larap_blender import props
+    path, pose, rest = _old_file(core, tmp_path)
     obj = _reload(path)
     s = obj.larap
     assert s.is_property_set("gamma") and abs(s.gamma - props.GAMMA_BEFORE_1) < 1e-7
     assert s.settings_version == props.SETTINGS_VERSION
+    assert np.array_equal(coords(obj, "LARAP"), pose)
+    from larap_blender import solving
+    assert solving.key_up_to_date(obj)  # the saved pose's digest still matches: no re-solve
     activate(obj)
     assert bpy.ops.larap.solve() == {"FINISHED"}
     assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-4 * diagonal(rest)
 
-    # An object that reaches this version without a load (appended): the engine is given the old
-    # value the first time it is built, and the settings are upgraded then.
+    # Undo to a step stored before the upgrade: the panel shows the old value again at once.
+    bpy.ops.ed.undo_push(message="upgraded")
+    s.property_unset("gamma")
+    s.property_unset("settings_version")
+    bpy.ops.ed.undo_push(message="as an older version stored it")
+    s.iterations = 7
+    bpy.ops.ed.undo_push(message="a later step")
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    s = bpy.data.objects["Bar"].larap
+    assert abs(s.gamma - props.GAMMA_BEFORE_1) < 1e-7 and s.settings_version == props.SETTINGS_VERSION
+
+    # Settings no update has reached yet: the engine is given the old value when it is built,
+    # and the settings are upgraded then.
     from larap_blender import core as core2
+    obj = bpy.data.objects["Bar"]
+    s = obj.larap
     s.property_unset("gamma")
     s.property_unset("settings_version")
     core2.drop_runtime(obj)
+    activate(obj)
     assert bpy.ops.larap.solve() == {"FINISHED"}
     assert abs(s.gamma - props.GAMMA_BEFORE_1) < 1e-7 and s.settings_version == props.SETTINGS_VERSION
     assert abs(core2.runtime(obj).deformer.gamma - props.GAMMA_BEFORE_1) < 1e-7
     assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-4 * diagonal(rest)
 
 
-def test_a_new_binds_default_stiffness_survives_save_reload(core, tmp_path):
-    """A file of this version with Stiffness never touched keeps the current default."""
+def test_an_object_appended_from_an_older_file_keeps_its_stiffness(core, tmp_path):
+    """Append runs no load_post: the depsgraph update that reports the new object upgrades it,
+    before anything is solved or drawn."""
+    from larap_blender import props
+    path, pose, rest = _old_file(core, tmp_path)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    from conftest import enable_addon
+    enable_addon()
+    with bpy.data.libraries.load(path, link=False) as (src, dst):
+        dst.objects = ["Bar"]
+    obj = dst.objects[0]
+    assert obj.larap.bound and obj.larap.settings_version == 0
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.update()
+    s = obj.larap
+    assert abs(s.gamma - props.GAMMA_BEFORE_1) < 1e-7 and s.settings_version == props.SETTINGS_VERSION
+
+
+def test_a_new_binds_stiffness_is_stored(core, tmp_path):
+    """Bind stores the Stiffness it bound with (the current default here), so a file of this
+    version keeps it across save and reload, and a later change of the default."""
     from larap_blender import props
     obj, *_ = bar_with_handles(core)
-    assert not obj.larap.is_property_set("gamma")
+    assert obj.larap.is_property_set("gamma")
     path = str(tmp_path / "new.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     s = _reload(path).larap
-    assert abs(s.gamma - props.GAMMA) < 1e-7 and s.settings_version == props.SETTINGS_VERSION
+    assert s.is_property_set("gamma") and abs(s.gamma - props.GAMMA) < 1e-7
+    assert s.settings_version == props.SETTINGS_VERSION

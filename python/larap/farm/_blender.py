@@ -66,7 +66,8 @@ def bind_state(core, obj) -> str:
     s = obj.larap
     state = {"rest": rt.rest_hash, "topology": rt.topology, "bind_topology": s.bind_topology,
              "vertices": s.bind_vertex_count, "lattice": [str(v) for v in (rt.settings_sig or ())[:-1]],
-             "gamma": float(s.gamma), "weights": s.weights_final, "groups": rt.membership_hash,
+             "gamma": rt.engine_gamma if rt.engine_gamma is not None else float(s.gamma),
+             "weights": s.weights_final, "groups": rt.membership_hash,
              "handles": [[h.vertex_group, h.target.name if h.target else "", h.subtarget, [float(v) for v in h.rest_matrix],
                           float(h.weight), bool(h.enabled)] for h in s.handles]}
     return hashlib.sha256(json.dumps(state, sort_keys=True).encode("utf-8")).hexdigest()

@@ -29,7 +29,7 @@ PREF_DEVICE_ITEMS = [item for item in DEVICE_ITEMS if item[0] != "DEFAULT"]
 # an object bound before, whose Stiffness was never changed, would read the new default and pose
 # differently: upgrade_settings gives it its old value instead.
 SETTINGS_VERSION = 1
-GAMMA = 0.03
+GAMMA = 0.03  # the engine's larap.DEFAULT_GAMMA (the engine may be missing here; a test keeps them equal)
 GAMMA_BEFORE_1 = 0.1
 
 

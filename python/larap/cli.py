@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from . import shapes
-from .deformer import Deformer, available_devices
+from .deformer import DEFAULT_GAMMA, Deformer, available_devices
 from .handles import HandleError, flatten, load_handles, parse_handles
 from .io import load_mesh, save_mesh
 
@@ -31,7 +31,8 @@ def _add_solver_args(p):
     res.add_argument("--cell-size", type=float, help="lattice cell edge length")
     p.add_argument("--weights", choices=["trilinear", "bspline"], default="bspline",
                    help="vertex weights (default bspline: C1, final quality)")
-    p.add_argument("--gamma", type=float, default=0.03, help="rigidity, scale-free (default 0.03)")
+    p.add_argument("--gamma", type=float, default=DEFAULT_GAMMA,
+                   help=f"rigidity, scale-free (default {DEFAULT_GAMMA:g})")
     p.add_argument("--iterations", type=int, default=30, help="flip-flop iterations (default 30)")
     p.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto")
     p.add_argument("--levels", type=int, default=1,

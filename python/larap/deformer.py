@@ -11,6 +11,8 @@ import numpy as np
 from ._native import _core
 from .io import faces_to_csr
 
+DEFAULT_GAMMA = _core.DEFAULT_GAMMA  # the engine's default stiffness (native/include/larap/deformer.h)
+
 
 
 def available_devices() -> list[str]:
@@ -117,7 +119,7 @@ class Deformer:
     weights: "trilinear" (8 nodes, fast, for dragging) or "bspline" (27 nodes, C1, final quality).
     gamma: rigidity, scale-free: the same value behaves the same at any model size, lattice
         resolution and handle count (docs/method.md). Larger is stiffer; handles are soft, and
-        pull harder the smaller gamma is (default 0.03, before 2026-11-22 0.1).
+        pull harder the smaller gamma is (default DEFAULT_GAMMA = 0.03; 0.1 before 2026-11-22).
     device: "cpu", "cuda" or "auto" (CUDA when a usable GPU exists, else the CPU; see .device).
     levels: lattice levels solved coarse to fine, each joining 2x2x2 cells of the one below (the
         paper's hierarchy; coarser levels run on the CPU). 1 = the fine lattice alone. More levels
@@ -131,7 +133,7 @@ class Deformer:
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
-                 weights="trilinear", gamma=0.03, device="cpu", max_bytes=None, levels=1,
+                 weights="trilinear", gamma=DEFAULT_GAMMA, device="cpu", max_bytes=None, levels=1,
                  split_cells=True, split_resolution=24):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:

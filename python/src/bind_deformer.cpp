@@ -171,7 +171,7 @@ void bind_deformer(py::module_& m) {
   py::class_<PyDeformer>(m, "Deformer")
       .def(py::init(&make), py::arg("vertices"), py::arg("face_offsets"), py::arg("face_indices"),
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
-           py::arg("gamma") = 0.03, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
+           py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
            py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24)
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
@@ -334,5 +334,6 @@ void bind_deformer(py::module_& m) {
   }, py::arg("n"));
   m.def("num_threads", &larap::num_threads);
   m.attr("MAX_LEVELS") = larap::kMaxLevels;
+  m.attr("DEFAULT_GAMMA") = larap::DeformerOptions{}.gamma;  // the one place the default lives
   m.attr("MAX_ITERATIONS") = larap::kMaxIterations;
 }

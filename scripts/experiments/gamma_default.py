@@ -36,6 +36,13 @@ CASES = {
 }
 
 
+def handles(V, groups):
+    """What the handles are, as artists make them: vertex groups and their share of the mesh."""
+    n = sum(len(g) for g in groups)
+    return (f"{n:,} of {len(V):,} vertices ({100 * n / len(V):.0f}%) in {len(groups)} vertex groups, "
+            f"the smallest {100 * min(len(g) for g in groups) / len(V):.1f}%")
+
+
 def pct(x):
     return "" if x is None or not np.isfinite(x) else f"{100 * x:.2f}"  # nan: an open mesh's volume
 
@@ -49,6 +56,7 @@ def quality_rows(gammas):
             continue
         tris, diag = case.tris, quality.diagonal(case.V)
         edges = quality.edges(tris)
+        print(f"{name}: handles {handles(case.V, case.groups)}")
         for g in gammas:
             kw = {"cells": case.cells} if case.cells else {}
             p = api.Posed(larap.Deformer(case.V, case.F, weights="bspline", gamma=g, **kw), case.V, case.groups)
@@ -68,6 +76,8 @@ def comb_rows(gammas, gap=0.1):
         for h in SWEEP_SIZES:
             V, F, tine_ids, _ = comb(gap=gap * h)
             groups, T = comb_pose(V, tine_ids, moved=1)
+            if g == gammas[0] and h == SWEEP_SIZES[0]:
+                print(f"handles {handles(V, groups)}")
             drag = 0.0
             for weights in ("trilinear", "bspline"):
                 d = larap.Deformer(V, F, cell_size=h, weights=weights, gamma=g)
@@ -92,6 +102,7 @@ def drag_rows(gammas, devices):
             print(f"{name}: skipped (mesh not found)")
             continue
         diag = quality.diagonal(case.V)
+        print(f"{name}: handles {handles(case.V, case.groups)}")
         H = api.targets(case.V, case.groups, case.final)
         for g in gammas:
             kw = {"cells": case.cells} if case.cells else {}

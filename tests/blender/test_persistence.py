@@ -152,3 +152,12 @@ def test_a_new_binds_stiffness_is_stored(core, tmp_path):
     s = _reload(path).larap
     assert s.is_property_set("gamma") and abs(s.gamma - props.GAMMA) < 1e-7
     assert s.settings_version == props.SETTINGS_VERSION
+
+
+def test_the_panels_default_stiffness_is_the_engines(core):
+    """The add-on's Stiffness default (props.GAMMA, needed before the engine loads) is the
+    engine's own default."""
+    import larap
+    from larap_blender import props
+    assert props.GAMMA == larap.DEFAULT_GAMMA
+    assert abs(props.LARAP_PG_settings.bl_rna.properties["gamma"].default - larap.DEFAULT_GAMMA) < 1e-7

@@ -69,10 +69,8 @@ def test_deform_with_transform_and_targets(tmp_path, mesh_file):
     assert abs((X[tip] - V[tip])[:, 2].mean() - 1.0) < 0.05
 
 
-def test_groups_are_handle_groups_with_their_weight(tmp_path, mesh_file):
-    """Each group of the file pulls as one handle group: a small tip group next to a big base
-    group reaches its target, and a larger "weight" makes it pull harder (at gamma 0.1, where the
-    stiffness rather than the lattice's own reach sets the miss)."""
+def tip_misses(tmp_path, mesh_file, *gamma_args):
+    """Mean miss of a small tip group next to a big base group, pulled with weight 1 and 10."""
     path, V = mesh_file
     tip = np.flatnonzero(V[:, 0] > 3.8)
     miss = []
@@ -83,28 +81,24 @@ def test_groups_are_handle_groups_with_their_weight(tmp_path, mesh_file):
         ]})
         out = tmp_path / f"w{w}.ply"
         assert main(["deform", str(path), "--handles", str(h), "--out", str(out), "--device", "cpu",
-                     "--iterations", "40", "--gamma", "0.1"]) == 0
+                     "--iterations", "40", *gamma_args]) == 0
         X, _ = larap.load_mesh(out)
         miss.append(np.linalg.norm(X[tip] - (V[tip] + [0, 1.5, 0]), axis=1).mean())
+    return miss
+
+
+def test_groups_are_handle_groups_with_their_weight(tmp_path, mesh_file):
+    """Each group of the file pulls as one handle group: a small tip group next to a big base
+    group reaches its target, and a larger "weight" makes it pull harder (at gamma 0.1, where the
+    stiffness rather than the lattice's own reach sets the miss)."""
+    miss = tip_misses(tmp_path, mesh_file, "--gamma", "0.1")
     assert miss[0] < 0.1 * 1.5 and miss[1] < 0.5 * miss[0], miss
 
 
 def test_group_weight_pulls_harder_at_the_default_stiffness(tmp_path, mesh_file):
     """At the default stiffness the tip is already close (the lattice's reach, not the stiffness,
     sets most of its miss); a weight of 10 still brings it closer (measured: 0.64 x)."""
-    path, V = mesh_file
-    tip = np.flatnonzero(V[:, 0] > 3.8)
-    miss = []
-    for w in (1, 10):
-        h = handle_file(tmp_path, {"handles": [
-            {"name": "base", "box": {"min": [-1, -1, -1], "max": [1.5, 1, 1]}},
-            {"name": "tip", "vertices": tip.tolist(), "weight": w, "transform": {"translate": [0, 1.5, 0]}},
-        ]})
-        out = tmp_path / f"d{w}.ply"
-        assert main(["deform", str(path), "--handles", str(h), "--out", str(out), "--device", "cpu",
-                     "--iterations", "40"]) == 0
-        X, _ = larap.load_mesh(out)
-        miss.append(np.linalg.norm(X[tip] - (V[tip] + [0, 1.5, 0]), axis=1).mean())
+    miss = tip_misses(tmp_path, mesh_file)
     assert miss[0] < 0.01 * 1.5 and miss[1] < 0.8 * miss[0], miss
 
 

@@ -13,6 +13,7 @@
 #include "backend.h"
 #include "handle_system.h"
 #include "hierarchy.h"
+#include "junction_stencils.h"
 #include "warm_start.h"
 
 namespace larap {
@@ -81,7 +82,10 @@ struct Deformer::Impl {
   const Binding& binding() const { return binding_of(weights); }
   const Binding& binding_of(WeightKind kind) const {
     auto& slot = bindings[kind == WeightKind::Trilinear ? 0 : 1];
-    if (!slot) slot = std::make_unique<Binding>(bind_vertices(lattice, mesh.vertices, kind));
+    if (!slot) {
+      slot = std::make_unique<Binding>(bind_vertices(lattice, mesh.vertices, kind));
+      resolve_junction_stencils(lattice, mesh, *slot);  // B-spline: each part's side of a junction
+    }
     return *slot;
   }
 

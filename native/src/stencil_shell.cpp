@@ -9,9 +9,9 @@
 namespace larap {
 namespace {
 
-constexpr int32_t kNone = -1, kAmbiguous = -2;
+constexpr int32_t kNone = kStencilNone, kAmbiguous = kStencilAmbiguous;
 
-inline int offset_index(int dx, int dy, int dz) { return (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1); }
+inline int offset_index(int dx, int dy, int dz) { return stencil_offset_index(dx, dy, dz); }
 
 struct ItemSets {
   std::vector<int32_t> parent, real;  // real: the real node a root stands for, or kNone
@@ -23,13 +23,8 @@ struct ItemSets {
 
 }  // namespace
 
-void build_stencil_shell(Lattice& lat) {
-  const int64_t nr = lat.num_nodes();
-  if (int64_t(27) * nr > int64_t(std::numeric_limits<int32_t>::max()))
-    throw OutOfMemory("the lattice has too many nodes for B-spline stencils (" + std::to_string(nr) + ")");
-  const int64_t ni = 27 * nr;
-  // Real nodes that share a cell copy with n, per offset.
-  std::vector<int32_t> cover(static_cast<size_t>(ni), kNone);
+std::vector<int32_t> stencil_cover(const Lattice& lat, int64_t nodes) {
+  std::vector<int32_t> cover(static_cast<size_t>(27 * nodes), kNone);
   for (const auto& cn : lat.cell_nodes)
     for (int a = 0; a < 8; ++a)
       for (int b = 0; b < 8; ++b) {
@@ -38,6 +33,16 @@ void build_stencil_shell(Lattice& lat) {
         if (c == kNone) c = cn[b];
         else if (c != cn[b]) c = kAmbiguous;
       }
+  return cover;
+}
+
+void build_stencil_shell(Lattice& lat) {
+  const int64_t nr = lat.num_nodes();
+  if (int64_t(27) * nr > int64_t(std::numeric_limits<int32_t>::max()))
+    throw OutOfMemory("the lattice has too many nodes for B-spline stencils (" + std::to_string(nr) + ")");
+  const int64_t ni = 27 * nr;
+  // Real nodes that share a cell copy with n, per offset.
+  const std::vector<int32_t> cover = stencil_cover(lat, nr);
   ItemSets sets;
   sets.parent.resize(size_t(ni));
   std::iota(sets.parent.begin(), sets.parent.end(), 0);

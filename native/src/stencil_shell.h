@@ -25,4 +25,12 @@ namespace larap {
 // Appends the shell nodes to `lat` (real nodes only so far) and fills stencil27 and shell_*.
 void build_stencil_shell(Lattice& lat);
 
+// What the cell copies say of each stencil item: for real node n (of the first `nodes`) and offset
+// index k = (dx+1) + 3 (dy+1) + 9 (dz+1), cover[27 n + k] is the one real node at n + d that
+// shares a cell copy with n, kStencilNone when no copy reaches there, kStencilAmbiguous when
+// copies of several pieces do (n is a node where pieces meet: junction_stencils.h).
+constexpr int32_t kStencilNone = -1, kStencilAmbiguous = -2;
+std::vector<int32_t> stencil_cover(const Lattice& lat, int64_t nodes);
+inline int stencil_offset_index(int dx, int dy, int dz) { return (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1); }
+
 }  // namespace larap

@@ -119,3 +119,50 @@ def torus(major=1.0, minor=0.35, n_major=64, n_minor=32):
     i1, j1 = (i + 1) % n_major, (j + 1) % n_minor
     F = np.stack([i * n_minor + j, i1 * n_minor + j, i1 * n_minor + j1, i * n_minor + j1], -1)
     return V, F.reshape(-1, 4).astype(np.int64)
+
+
+def tube_between(p0, p1, radius, segments=12, rings=8):
+    """Closed cylinder from point p0 to point p1 (tube() turned onto the segment)."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    length = float(np.linalg.norm(p1 - p0))
+    V, F = tube(length=length, radius=radius, segments=segments, rings=rings)
+    d = (p1 - p0) / length
+    x = np.array([1.0, 0.0, 0.0])
+    v, c = np.cross(x, d), float(x @ d)
+    if np.linalg.norm(v) < 1e-12:
+        R = np.eye(3) if c > 0 else np.diag([-1.0, -1.0, 1.0])
+    else:
+        K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        R = np.eye(3) + K + K @ K / (1 + c)
+    return V @ R.T + p0, F
+
+
+def character(finger_gap=0.004, finger_rings=6):
+    """A figure in T-pose, 1.77 tall, made of separate closed parts as characters often are:
+    torso, head, legs, arms, and on each arm a palm with four fingers pushed into it (tubes 18 mm
+    thick, `finger_gap` apart, 90 mm long). On the default lattice its fingers are about half a
+    cell thick and a tenth of a cell apart. Returns (V, F, parts): parts maps "fingers" to the
+    right hand's four finger vertex ids (in y order), "hand" to the vertices at x >= 0.70 (the
+    right palm and fingers) and "root_x" to the x where the right fingers leave the palm."""
+    pieces = [box((-0.18, -0.1, 0.9), (0.18, 0.1, 1.5), 6),            # torso
+              sphere((0.0, 0.0, 1.65), 0.12, 10, 16),                   # head
+              box((-0.17, -0.08, 0.0), (-0.03, 0.08, 0.92), 6),         # legs
+              box((0.03, -0.08, 0.0), (0.17, 0.08, 0.92), 6)]
+    width = 0.018
+    pitch = width + finger_gap
+    y0 = -2 * pitch + finger_gap / 2
+    right = []
+    for s in (-1.0, 1.0):
+        pieces.append(tube_between((s * 0.15, 0, 1.42), (s * 0.72, 0, 1.42), 0.045))  # arm
+        lo, hi = sorted((s * 0.70, s * 0.80))
+        pieces.append(box((lo, y0 - 0.005, 1.405), (hi, -y0 + 0.005, 1.435), 4))      # palm
+        for k in range(4):
+            y = y0 + k * pitch + width / 2
+            pieces.append(tube_between((s * 0.79, y, 1.42), (s * 0.88, y, 1.42), width / 2,
+                                       segments=10, rings=finger_rings))
+            if s > 0:
+                right.append(len(pieces) - 1)
+    V, F = concat(*pieces)
+    first = np.cumsum([0] + [len(p[0]) for p in pieces])
+    fingers = [np.arange(first[i], first[i + 1]) for i in right]
+    return V, F, {"fingers": fingers, "hand": np.flatnonzero(V[:, 0] >= 0.70), "root_x": 0.80}

@@ -102,18 +102,20 @@ def comb_sweep():
 
 def test_comb_at_every_alignment_mostly_meets_the_target():
     """What cell weights by material bought (2026-11-22: median 2.35 -> 1.10 %, worst 4.25 ->
-    2.69 %, 0 -> 7 of 17 sizes within 1 %) and the stiffer default handles after them (gamma 0.1
-    -> 0.03: median 0.95 %, worst 2.37 %, 11 of 17): the tip always reaches its target, and the
+    2.69 %, 0 -> 7 of 17 sizes within 1 %), the stiffer default handles after them (gamma 0.1
+    -> 0.03: median 0.95 %, worst 2.37 %, 11 of 17) and B-spline stencils read from each part's
+    side of a junction (median 0.65 %, 13 of 17): the tip always reaches its target, and the
     drag stays within these bounds."""
     rows = comb_sweep()
     assert rows[:, 1].max() <= 3.0, rows[:, 1]
-    assert np.median(rows[:, 0]) <= 1.0, rows[:, 0]
-    assert rows[:, 0].max() <= 2.6, rows[:, 0]
-    assert (rows[:, 0] <= 1.0).sum() >= 10, rows[:, 0]
+    assert np.median(rows[:, 0]) <= 0.75, rows[:, 0]
+    assert rows[:, 0].max() <= 2.5, rows[:, 0]
+    assert (rows[:, 0] <= 1.0).sum() >= 13, rows[:, 0]
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 6 of 17 cell sizes the "
-                   "neighbours move 1.1-2.4% of the diagonal. The cells where the tines leave the "
+@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 4 of 17 cell sizes the "
+                   "neighbours move 1.1-2.4% of the diagonal (the lattice's own pose: trilinear "
+                   "1.0-2.3%). The cells where the tines leave the "
                    "base are as coarse as a tine is thick: the row of them bends with the turned "
                    "tine and tilts its neighbours' roots, whether or not the tines share a cell "
                    "(docs/method.md, 'What splitting cannot separate'); a finer lattice only at "

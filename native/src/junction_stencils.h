@@ -19,11 +19,14 @@
 //      stencils of the part's vertices farther from the junction;
 // and keeps the node's own item when neither is unique. Vertices of one part near one node share
 // one row. Rows that differ from the node's own are appended to Binding::node27 after the per-node
-// rows, and Binding::base names the row: the transfer (CPU and GPU) and the handles' rows
-// (Binding::weights_of) read them unchanged, so the energy and the shown pose agree. Affine maps
-// are still reproduced exactly (every item is a node at its own point or an affine-exact shell).
-// A part that meets other parts only inside one cell copy (one connected mesh branching within a
-// cell) has no side of its own there and keeps the node's stencil.
+// rows, and Binding::base names the row: the transfer (CPU and GPU, Binding::weights_of) reads
+// them unchanged. Handles are bound trilinearly with either weight kind, so the lattice's pose is
+// not affected: only what the B-spline makes of it. Affine maps are still reproduced exactly
+// (every item is a node at its own point or an affine-exact shell).
+// One connected mesh branching inside a cell finds every copy around the node on its side and keeps
+// the node's stencil (the step included: telling its branches apart needs a finer partition of
+// that copy). A copy the part crosses only with large triangles, no vertex of it inside, is not
+// counted as its side.
 #pragma once
 #include <larap/binding.h>
 #include <larap/lattice.h>

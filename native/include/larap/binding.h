@@ -16,14 +16,16 @@ const char* weight_kind_name(WeightKind kind);
 
 struct Binding {
   WeightKind kind = WeightKind::Trilinear;
-  // Per vertex: trilinear -> the id of its cell copy; bspline -> the id of its nearest node (a
-  // corner of its cell copy), whose row of node27 is the vertex's stencil.
+  // Per vertex: trilinear -> the id of its cell copy; bspline -> its row of node27: the id of its
+  // nearest node (a corner of its cell copy), or, near a junction, a row read from its own part's
+  // side (junction_stencils.h), appended after the per-node rows.
   std::vector<int32_t> base;
   // Per vertex (#V by 3, row-major): trilinear -> position in the cell in [0,1]^3;
   // bspline -> offset from the nearest node in [-1/2,1/2]^3 (in cells).
   std::vector<float> frac;
-  // bspline only: #real nodes by 27 ids of the node of the same piece at (x+dx, y+dy, z+dz),
-  // d in {-1,0,1}, dx fastest: a real node or a stencil-shell node (Lattice::stencil27).
+  // bspline only: rows of 27 ids of the node of the same piece at (x+dx, y+dy, z+dz), d in
+  // {-1,0,1}, dx fastest: a real node or a stencil-shell node. One row per real node
+  // (Lattice::stencil27), then the junction rows.
   std::vector<int32_t> node27;
 
   int stencil_size() const { return kind == WeightKind::Trilinear ? 8 : 27; }

@@ -6,32 +6,23 @@
 #include <array>
 #include <limits>
 #include <map>
-#include <numeric>
 #include <unordered_map>
 
+#include "disjoint_sets.h"
 #include "stencil_shell.h"
 
 namespace larap {
 namespace {
 
-// Connected components of the mesh through its faces; a vertex on no face is its own part.
+// Connected components of the mesh through its faces; a vertex on no face is its own part. A
+// part is named by its smallest vertex id.
 std::vector<int32_t> mesh_parts(const PolygonMesh& mesh) {
-  const int64_t n = mesh.num_vertices();
-  std::vector<int64_t> parent(static_cast<size_t>(n));
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&](int64_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  for (int64_t f = 0; f < mesh.num_faces(); ++f) {
-    const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
-    for (int64_t k = b + 1; k < e; ++k) {
-      const int64_t r0 = find(mesh.face_indices[b]), r1 = find(mesh.face_indices[k]);
-      if (r0 != r1) parent[std::max(r0, r1)] = std::min(r0, r1);
-    }
-  }
-  std::vector<int32_t> part(static_cast<size_t>(n));
-  for (int64_t v = 0; v < n; ++v) part[v] = int32_t(find(v));  // the root: a vertex id
+  DisjointSets sets(mesh.num_vertices());
+  for (int64_t f = 0; f < mesh.num_faces(); ++f)
+    for (int64_t k = mesh.face_offsets[f] + 1; k < mesh.face_offsets[f + 1]; ++k)
+      sets.unite(int32_t(mesh.face_indices[mesh.face_offsets[f]]), int32_t(mesh.face_indices[k]));
+  std::vector<int32_t> part(static_cast<size_t>(mesh.num_vertices()));
+  for (int64_t v = 0; v < mesh.num_vertices(); ++v) part[v] = sets.find(int32_t(v));
   return part;
 }
 

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "cell_pieces.h"
+#include "disjoint_sets.h"
 #include "voxel_grid.h"
 #include "geometry.h"
 #include "stencil_shell.h"
@@ -41,21 +42,6 @@ int32_t Lattice::cell_at(int x, int y, int z) const {
 
 // ------------------------------------------------------------------------------------ assembly
 namespace {
-
-// Disjoint sets whose root is the smallest member.
-struct DisjointSets {
-  std::vector<int32_t> parent;
-  explicit DisjointSets(int64_t n) : parent(size_t(n)) { std::iota(parent.begin(), parent.end(), 0); }
-  int32_t find(int32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  }
-  void unite(int32_t a, int32_t b) {
-    a = find(a);
-    b = find(b);
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
-  }
-};
 
 Eigen::Vector3i corner_offset(int c) { return Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2); }
 

@@ -25,13 +25,17 @@ PolygonMesh comb() {
   return m;
 }
 
+Lattice unit_lattice(const PolygonMesh& m) {
+  LatticeOptions opt;
+  opt.cell_size = 1.0;
+  return Lattice::build(m, opt);
+}
+
 }  // namespace
 
 TEST(JunctionStencils, ResolvedRowsReproduceAffineMapsAndRest) {
   const PolygonMesh m = comb();
-  LatticeOptions opt;
-  opt.cell_size = 1.0;
-  const Lattice lat = Lattice::build(m, opt);
+  const Lattice lat = unit_lattice(m);
   Binding b = bind_vertices(lat, m.vertices, WeightKind::BSpline);
   const size_t before = b.node27.size();
   resolve_junction_stencils(lat, m, b);
@@ -44,10 +48,8 @@ TEST(JunctionStencils, ResolvedRowsReproduceAffineMapsAndRest) {
   A << 1.2, 0.3, -0.1, 0.05, 0.8, 0.4, -0.2, 0.1, 1.1;
   const Eigen::Vector3d t(0.5, -1.0, 2.0);
   for (int affine = 0; affine < 2; ++affine) {
-    RowMatrixX3d disp = RowMatrixX3d::Zero(lat.num_nodes(), 3);
-    if (affine)
-      for (int64_t i = 0; i < lat.num_nodes(); ++i)
-        disp.row(i) = (A * lat.rest.row(i).transpose() + t - lat.rest.row(i).transpose()).transpose();
+    const RowMatrixX3d disp = affine ? gen::affine_displacement(lat.rest, A, t)
+                                     : RowMatrixX3d(RowMatrixX3d::Zero(lat.num_nodes(), 3));
     std::vector<double> out(3 * m.num_vertices());
     transfer(lat, b, m.vertices, disp, out.data());
     double worst = 0;
@@ -75,15 +77,13 @@ TEST(JunctionStencils, ResolvedRowsReproduceAffineMapsAndRest) {
 
 TEST(JunctionStencils, TrilinearAndSinglePartsAreLeftAlone) {
   const PolygonMesh m = comb();
-  LatticeOptions opt;
-  opt.cell_size = 1.0;
-  const Lattice lat = Lattice::build(m, opt);
+  const Lattice lat = unit_lattice(m);
   Binding tri = bind_vertices(lat, m.vertices, WeightKind::Trilinear);
   const std::vector<int32_t> base = tri.base;
   resolve_junction_stencils(lat, m, tri);
   EXPECT_EQ(tri.base, base);
   const PolygonMesh s = gen::sphere({0, 0, 0}, 1.0, 8, 16);
-  const Lattice ls = Lattice::build(s, opt);
+  const Lattice ls = unit_lattice(s);
   Binding bs = bind_vertices(ls, s.vertices, WeightKind::BSpline);
   const size_t rows = bs.node27.size();
   resolve_junction_stencils(ls, s, bs);

@@ -76,9 +76,7 @@ TEST_P(BindingAffine, ReproducesAffineMaps) {
   Eigen::Matrix3d A;
   A << 1.2, 0.3, -0.1, 0.05, 0.8, 0.4, -0.2, 0.1, 1.1;
   const Eigen::Vector3d t(0.5, -1.0, 2.0);
-  RowMatrixX3d disp(lat.num_nodes(), 3);
-  for (int64_t i = 0; i < lat.num_nodes(); ++i)
-    disp.row(i) = (A * lat.rest.row(i).transpose() + t - lat.rest.row(i).transpose()).transpose();
+  const RowMatrixX3d disp = gen::affine_displacement(lat.rest, A, t);
   std::vector<double> out(3 * m.num_vertices());
   transfer(lat, b, m.vertices, disp, out.data());
   double worst = 0;

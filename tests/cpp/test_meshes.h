@@ -90,4 +90,13 @@ inline PolygonMesh point(const Eigen::Vector3d& p) {
   return m;
 }
 
+// Displacements that move points `rest` (#N by 3) by x -> A x + t: a lattice posed by an affine map.
+inline RowMatrixX3d affine_displacement(const RowMatrixX3d& rest, const Eigen::Matrix3d& A,
+                                        const Eigen::Vector3d& t) {
+  RowMatrixX3d disp(rest.rows(), 3);
+  for (int64_t i = 0; i < rest.rows(); ++i)
+    disp.row(i) = (A * rest.row(i).transpose() + t - rest.row(i).transpose()).transpose();
+  return disp;
+}
+
 }  // namespace larap::gen

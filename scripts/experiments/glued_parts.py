@@ -1,0 +1,198 @@
+"""Prototype for issue 9's last target (neighbours within 1% at every lattice size): one lattice per
+mesh part, glued by a soft term where the parts' solids overlap, solved by a reference flip-flop
+in numpy/scipy. Research code, not used by the engine or the add-on.
+
+Where separate parts meet (fingers pushed into a palm, a comb's tines into its base), the engine's
+lattice has one cell copy for the cell where the palm ends, holding the palm's end and every
+finger's root; its far nodes are shared by all the fingers and rise with a turned one
+(docs/method.md, "What splitting cannot separate"). Here every part gets its own lattice on the
+same grid (a larap.Deformer per part, its grid origin pinned by one extra loose vertex at the
+model's lower corner), and the energy gains
+
+    mu * gamma_eff * sum_p |B_a(p) x - B_b(p) x|^2
+
+over sample points p (a grid of spacing h/3) inside two parts a and b (generalised winding
+number), B_a(p) the trilinear row of p in part a's lattice. The rest is the engine's energy
+(node rotations, the lattice's edge weights, group-normalised handles, gamma_eff over all edges);
+the baseline column runs the same solver on the engine's own lattice (it reproduces the engine's
+trilinear figures). Trilinear transfer only.
+
+    PYTHONPATH=python /usr/bin/python3 scripts/experiments/glued_parts.py [--mu 10 100]
+        [--character-cells 4000 ... 9000] [--comb-sizes 0.25 ... 1.05]"""
+import argparse
+import os
+import sys
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as cg
+import scipy.sparse.linalg as spla
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path[:0] = [os.path.join(REPO, "python"), os.path.join(REPO, "tests", "python"),
+                os.path.dirname(os.path.abspath(__file__))]
+
+import larap  # noqa: E402
+from arap_variants import Lat, best_rotations, winding_inside  # noqa: E402
+
+
+def triangles(F):
+    return np.array([[p[0], p[j], p[j + 1]] for p in F for j in range(1, len(p) - 1)])
+
+
+def point_rows(lat, P):
+    """Trilinear rows (ids, weights) of points P in `lat` (the first copy of the point's grid
+    cell), and which points have a cell."""
+    first = {}
+    for c, cc in enumerate(lat.cell_coords):
+        first.setdefault(tuple(cc), c)
+    g = np.floor((P - lat.origin) / lat.h).astype(np.int64)
+    ids, w, ok = np.zeros((len(P), 8), np.int64), np.zeros((len(P), 8)), np.zeros(len(P), bool)
+    for i, gg in enumerate(g):
+        c = first.get(tuple(gg))
+        if c is None:
+            continue
+        ok[i] = True
+        f = (P[i] - lat.rest[lat.cells[c, 0]]) / lat.h
+        for q in range(8):
+            b = np.array([q & 1, (q >> 1) & 1, q >> 2])
+            ids[i, q], w[i, q] = lat.cells[c, q], np.prod(np.where(b == 1, f, 1 - f))
+    return ids, w, ok
+
+
+class Model:
+    """A lattice (nodes, edges, weights), the vertices' trilinear rows, and glue rows."""
+
+    def __init__(self, rest, edges, edge_w, rows, weights, glue=None):
+        self.rest, self.edges, self.edge_w = rest, edges, edge_w
+        self.rows, self.weights, self.glue = rows, weights, glue
+
+    @staticmethod
+    def engine(V, F, h):
+        d = larap.Deformer(V, F, cell_size=h, weights="trilinear")
+        lat = Lat(d, V)
+        return Model(lat.rest, lat.edges, d.lattice_edge_weights(), lat.tri_ids, lat.tri_w)
+
+    @staticmethod
+    def glued(V, F, h):
+        n, tris = len(V), triangles(F)
+        A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
+        ncomp, comp = cg.connected_components(A + A.T, directed=False)
+        lo = V.min(0)
+        lats, rest, edges, ew = [], [], [], []
+        rows, weights, off = np.zeros((n, 8), np.int64), np.zeros((n, 8)), 0
+        for c in range(ncomp):
+            ids = np.flatnonzero(comp == c)
+            loc = -np.ones(n, np.int64)
+            loc[ids] = np.arange(len(ids))
+            Vc = np.vstack([V[ids], lo[None]])  # the loose corner vertex pins the grid's origin
+            dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=h, weights="trilinear")
+            lat = Lat(dc, Vc)
+            lats.append((lat, off))
+            rest.append(lat.rest), edges.append(lat.edges + off), ew.append(dc.lattice_edge_weights())
+            rows[ids], weights[ids] = lat.tri_ids[:len(ids)] + off, lat.tri_w[:len(ids)]
+            off += lat.nr
+        inside = [winding_inside(V, tris[comp[tris[:, 0]] == c]) for c in range(ncomp)]
+        box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(ncomp)]
+        gr, gc, gv, r = [], [], [], 0
+        for a in range(ncomp):
+            for b in range(a + 1, ncomp):
+                blo, bhi = np.maximum(box[a][0], box[b][0]), np.minimum(box[a][1], box[b][1])
+                if np.any(blo >= bhi):
+                    continue
+                axes = [np.arange(blo[k] + h / 6, bhi[k], h / 3) for k in range(3)]
+                if any(len(x) == 0 for x in axes):
+                    continue
+                P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+                P = P[inside[a](P) & inside[b](P)]
+                if not len(P):
+                    continue
+                ia, wa, oka = point_rows(lats[a][0], P)
+                ib, wb, okb = point_rows(lats[b][0], P)
+                for t in np.flatnonzero(oka & okb):
+                    gr += [r] * 16
+                    gc += list(ia[t] + lats[a][1]) + list(ib[t] + lats[b][1])
+                    gv += list(wa[t]) + list(-wb[t])
+                    r += 1
+        G = sp.csr_matrix((gv, (gr, gc)), shape=(r, off))
+        return Model(np.vstack(rest), np.vstack(edges), np.concatenate(ew), rows, weights, G)
+
+    def solve(self, V, groups, T, h, gamma=0.03, mu=10.0, iterations=30):
+        """Flip-flops from the rest pose; returns the posed vertices (trilinear)."""
+        rest, nr = self.rest, len(self.rest)
+        E = self.edges
+        i, k = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
+        w = np.concatenate([self.edge_w, self.edge_w])
+        e = rest[i] - rest[k]
+        s = float(np.sqrt(((V - V.mean(0)) ** 2).sum(1).mean()))
+        geff = gamma * s ** 2 / (h ** 2 * w.sum())
+        t = np.arange(len(i))
+        D = sp.csr_matrix((np.concatenate([w, -w]), (np.concatenate([t, t]), np.concatenate([i, k]))), shape=(len(i), nr))
+        Dt = sp.csr_matrix((np.concatenate([np.ones_like(w), -np.ones_like(w)]),
+                            (np.concatenate([i, k]), np.concatenate([t, t]))), shape=(nr, len(i)))
+        hr = np.concatenate(groups)
+        alpha = np.concatenate([np.full(len(g), 1.0 / len(groups) / len(g)) for g in groups])
+        target = np.concatenate([V[g] @ T[j][:3, :3].T + T[j][:3, 3] for j, g in enumerate(groups)])
+        m = len(hr)
+        B = sp.csr_matrix((self.weights[hr].ravel(), (np.repeat(np.arange(m), 8), self.rows[hr].ravel())), shape=(m, nr))
+        M = geff * (Dt @ D) + B.T @ sp.diags(alpha) @ B + 1e-9 * sp.identity(nr)  # 1e-9: unheld parts stay
+        if self.glue is not None:
+            M = M + mu * geff * (self.glue.T @ self.glue)
+        lu = spla.factorized(sp.csc_matrix(M))
+        bt = B.T @ (alpha[:, None] * target) + 1e-9 * rest
+        X = rest.copy()
+        for _ in range(iterations):
+            d = X[i] - X[k]
+            S = np.zeros((nr, 3, 3))
+            np.add.at(S, i, w[:, None, None] * d[:, :, None] * e[:, None, :])
+            Re = np.einsum("tab,tb->ta", best_rotations(S)[i], e) * w[:, None]
+            rhs = geff * (Dt @ Re) + bt
+            X = np.stack([lu(rhs[:, c]) for c in range(3)], 1)
+        return V + np.einsum("vq,vqc->vc", self.weights, X[self.rows] - rest[self.rows])
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--mu", type=float, nargs="+", default=[10.0, 100.0])
+    p.add_argument("--character-cells", type=int, nargs="*",
+                   default=[4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000])
+    p.add_argument("--comb-sizes", type=float, nargs="*", default=None)
+    a = p.parse_args()
+    from larap import shapes
+    from test_junctions import finger_pose, hand_size
+    from test_topology import SWEEP_SIZES, comb, comb_pose
+    from conftest import diagonal
+    print("model | size | nodes engine / glued | glue rows | neighbours moved, % (engine lattice | glued, per mu) "
+          "| tip miss % (glued, per mu)")
+    V, F, parts = shapes.character()
+    groups, T = finger_pose(V, parts)
+    size = hand_size(V, parts)
+    for cells in a.character_cells:
+        h = larap.Deformer(V, F, cells=cells).cell_size
+        runs = [(Model.engine(V, F, h), None)] + [(None, mu) for mu in a.mu]
+        glued = Model.glued(V, F, h)
+        out, miss = [], []
+        for model, mu in runs:
+            X = (model or glued).solve(V, groups, T, h, mu=mu or 0.0)
+            out.append(100 * max(np.linalg.norm(X[f] - V[f], axis=1).max() for f in
+                                 (parts["fingers"][0], parts["fingers"][2], parts["fingers"][3])) / size)
+            tip = groups[3]
+            miss.append(100 * np.linalg.norm(X[tip] - (V[tip] @ T[3][:3, :3].T + T[3][:3, 3]), axis=1).max() / 0.09)
+        print(f"character | {cells} cells | {len(runs[0][0].rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | "
+              f"{out[0]:.2f} | " + " / ".join(f"{x:.2f}" for x in out[1:]) + " | " +
+              " / ".join(f"{x:.1f}" for x in miss[1:]), flush=True)
+    for h in (SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes):
+        V, F, tine_ids, _ = comb(gap=0.1 * h)
+        groups, T = comb_pose(V, tine_ids, moved=1)
+        engine, glued = Model.engine(V, F, h), Model.glued(V, F, h)
+        out = [engine.solve(V, groups, T, h)] + [glued.solve(V, groups, T, h, mu=mu) for mu in a.mu]
+        drag = [100 * max(np.linalg.norm(X[tine_ids[t]] - V[tine_ids[t]], axis=1).max() for t in (0, 2)) / diagonal(V)
+                for X in out]
+        miss = [100 * np.linalg.norm(X[groups[2]] - (V[groups[2]] @ T[2][:3, :3].T + T[2][:3, 3]), axis=1).max() / 6.0
+                for X in out[1:]]
+        print(f"comb | h {h:.2f} | {len(engine.rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | {drag[0]:.2f} | "
+              + " / ".join(f"{x:.2f}" for x in drag[1:]) + " | " + " / ".join(f"{x:.1f}" for x in miss), flush=True)
+
+
+if __name__ == "__main__":
+    main()

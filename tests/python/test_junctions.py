@@ -2,8 +2,9 @@
 """B-spline stencils at junctions, where pieces meet (issue 9; native/src/junction_stencils.h): on a
 generated character whose fingers are separate parts pushed into the palm, half a cell thick and a
 tenth of a cell apart on the default lattice, a finger turned 60 degrees leaves its neighbours
-within 1% of the hand with either weight kind, and the final (B-spline) pose has no step where the
-fingers leave the palm; rest, rigid and affine poses are still reproduced, on both devices."""
+within 1% of the hand with either weight kind at the default lattice (not yet at every lattice size
+around it: a strict xfail), and the final (B-spline) pose has no step where the fingers leave the
+palm; rest, rigid and affine poses are still reproduced, on both devices."""
 import numpy as np
 import pytest
 from conftest import rotation
@@ -60,6 +61,49 @@ def test_character_finger_turned_leaves_its_neighbours(weights):
     tip = groups[3]
     miss = np.linalg.norm(X[tip] - (V[tip] @ T[3][:3, :3].T + T[3][:3, 3]), axis=1).max()
     assert miss <= 0.03 * 0.09, miss / 0.09
+
+
+# Lattice sizes around the default (6000 cells): the palm's end and the fingers' roots fall at
+# every position in their cells.
+CHARACTER_CELLS = (4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000)
+
+
+def character_sweep():
+    """Per lattice size, the other fingers' largest move (% of the hand's diagonal) with the worse
+    of the two weight kinds, for finger_pose after 30 flip-flops."""
+    if not hasattr(character_sweep, "drag"):
+        V, F, parts = shapes.character()
+        groups, T = finger_pose(V, parts)
+        size, drag = hand_size(V, parts), []
+        for cells in CHARACTER_CELLS:
+            worst = 0.0
+            for weights in ("trilinear", "bspline"):
+                d = larap.Deformer(V, F, weights=weights, cells=cells)
+                d.set_handle_groups(groups)
+                X = d.solve(transforms=T, iterations=30)
+                worst = max([worst] + [np.linalg.norm(X[parts["fingers"][k]] - V[parts["fingers"][k]], axis=1).max()
+                                       for k in (0, 2, 3)])
+            drag.append(100 * worst / size)
+        character_sweep.drag = np.array(drag)
+    return character_sweep.drag
+
+
+def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
+    """What the engine does today (2026-11-23: 4 of 10 sizes within 1%, median 1.7%, worst 3.1%):
+    a guard against getting worse, not the target (the strict xfail below)."""
+    drag = character_sweep()
+    assert np.median(drag) <= 2.0, drag
+    assert drag.max() <= 3.4, drag
+    assert (drag <= 1.05).sum() >= 4, drag
+
+
+@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-23): at 6 of 10 lattice sizes "
+                   "from 4000 to 9000 cells the other fingers move 1.6-3.1% of the hand. The cell "
+                   "where the palm ends holds the roots of every finger joined through the palm's "
+                   "end: its far nodes are shared by all the fingers and rise with the turned one "
+                   "(docs/method.md, 'What splitting cannot separate')")
+def test_character_at_every_lattice_size_meets_the_target():
+    assert character_sweep().max() <= 1.0, character_sweep()
 
 
 def test_bspline_pose_has_no_step_where_the_fingers_leave_the_palm():

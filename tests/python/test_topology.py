@@ -113,13 +113,13 @@ def test_comb_at_every_alignment_mostly_meets_the_target():
     assert (rows[:, 0] <= 1.0).sum() >= 13, rows[:, 0]
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-22): at 4 of 17 cell sizes the "
+@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-23): at 4 of 17 cell sizes the "
                    "neighbours move 1.1-2.4% of the diagonal (the lattice's own pose: trilinear "
-                   "1.0-2.3%). The cells where the tines leave the "
-                   "base are as coarse as a tine is thick: the row of them bends with the turned "
-                   "tine and tilts its neighbours' roots, whether or not the tines share a cell "
-                   "(docs/method.md, 'What splitting cannot separate'); a finer lattice only at "
-                   "such joints would (adaptive refinement, not built)")
+                   "1.0-2.3%). The cell where the base ends holds the roots of every tine joined "
+                   "through the base's end; its far nodes rise with the turned tine and tilt its "
+                   "neighbours' roots, whether or not the tines share a cell (docs/method.md, "
+                   "'What splitting cannot separate'). Junctions made of the parts themselves, "
+                   "glued where they overlap, would separate them; not built")
 def test_comb_at_every_alignment_meets_the_target():
     rows = comb_sweep()
     assert rows[:, 0].max() <= 1.0, rows[:, 0]

@@ -60,6 +60,57 @@ def point_rows(lat, P):
     return ids, w, ok
 
 
+class PartLattices:
+    """One lattice per mesh part (connected component) on the model's grid: a larap.Deformer per
+    part, its grid origin pinned by a loose vertex at the model's lower corner; nodes numbered
+    part after part."""
+
+    def __init__(self, V, F, h):
+        n, tris = len(V), triangles(F)
+        A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
+        self.count, comp = cg.connected_components(A + A.T, directed=False)
+        lo = V.min(0)
+        self.lats, self.offsets, rest, edges, ew = [], [], [], [], []
+        self.rows, self.weights, off = np.zeros((n, 8), np.int64), np.zeros((n, 8)), 0
+        for c in range(self.count):
+            ids = np.flatnonzero(comp == c)
+            loc = -np.ones(n, np.int64)
+            loc[ids] = np.arange(len(ids))
+            Vc = np.vstack([V[ids], lo[None]])
+            dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=h, weights="trilinear")
+            lat = Lat(dc, Vc)
+            self.lats.append(lat)
+            self.offsets.append(off)
+            rest.append(lat.rest), edges.append(lat.edges + off), ew.append(dc.lattice_edge_weights())
+            self.rows[ids], self.weights[ids] = lat.tri_ids[:len(ids)] + off, lat.tri_w[:len(ids)]
+            off += lat.nr
+        self.rest, self.edges, self.edge_w = np.vstack(rest), np.vstack(edges), np.concatenate(ew)
+        self.inside = [winding_inside(V, tris[comp[tris[:, 0]] == c]) for c in range(self.count)]
+        self.box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(self.count)]
+
+    def overlaps(self, spacing, offset, origin=None):
+        """(a, b, points inside both parts a < b) on a grid of `spacing` (through origin + offset
+        when given, else from the boxes' overlap + offset)."""
+        for a in range(self.count):
+            for b in range(a + 1, self.count):
+                blo = np.maximum(self.box[a][0], self.box[b][0])
+                bhi = np.minimum(self.box[a][1], self.box[b][1])
+                if np.any(blo >= bhi):
+                    continue
+                if origin is None:
+                    axes = [np.arange(blo[k] + offset, bhi[k], spacing) for k in range(3)]
+                else:
+                    g0 = np.floor((blo - origin) / spacing)
+                    g1 = np.ceil((bhi - origin) / spacing)
+                    axes = [origin[k] + offset + spacing * np.arange(g0[k], g1[k]) for k in range(3)]
+                if any(len(x) == 0 for x in axes):
+                    continue
+                P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+                P = P[self.inside[a](P) & self.inside[b](P)]
+                if len(P):
+                    yield a, b, P
+
+
 class Model:
     """A lattice (nodes, edges, weights), the vertices' trilinear rows, and glue rows."""
 
@@ -75,47 +126,58 @@ class Model:
 
     @staticmethod
     def glued(V, F, h):
-        n, tris = len(V), triangles(F)
-        A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
-        ncomp, comp = cg.connected_components(A + A.T, directed=False)
-        lo = V.min(0)
-        lats, rest, edges, ew = [], [], [], []
-        rows, weights, off = np.zeros((n, 8), np.int64), np.zeros((n, 8)), 0
-        for c in range(ncomp):
-            ids = np.flatnonzero(comp == c)
-            loc = -np.ones(n, np.int64)
-            loc[ids] = np.arange(len(ids))
-            Vc = np.vstack([V[ids], lo[None]])  # the loose corner vertex pins the grid's origin
-            dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=h, weights="trilinear")
-            lat = Lat(dc, Vc)
-            lats.append((lat, off))
-            rest.append(lat.rest), edges.append(lat.edges + off), ew.append(dc.lattice_edge_weights())
-            rows[ids], weights[ids] = lat.tri_ids[:len(ids)] + off, lat.tri_w[:len(ids)]
-            off += lat.nr
-        inside = [winding_inside(V, tris[comp[tris[:, 0]] == c]) for c in range(ncomp)]
-        box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(ncomp)]
+        """Every part its own lattice; glue rows at points (spacing h/3) inside two parts."""
+        parts = PartLattices(V, F, h)
         gr, gc, gv, r = [], [], [], 0
-        for a in range(ncomp):
-            for b in range(a + 1, ncomp):
-                blo, bhi = np.maximum(box[a][0], box[b][0]), np.minimum(box[a][1], box[b][1])
-                if np.any(blo >= bhi):
-                    continue
-                axes = [np.arange(blo[k] + h / 6, bhi[k], h / 3) for k in range(3)]
-                if any(len(x) == 0 for x in axes):
-                    continue
-                P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-                P = P[inside[a](P) & inside[b](P)]
-                if not len(P):
-                    continue
-                ia, wa, oka = point_rows(lats[a][0], P)
-                ib, wb, okb = point_rows(lats[b][0], P)
-                for t in np.flatnonzero(oka & okb):
-                    gr += [r] * 16
-                    gc += list(ia[t] + lats[a][1]) + list(ib[t] + lats[b][1])
-                    gv += list(wa[t]) + list(-wb[t])
-                    r += 1
-        G = sp.csr_matrix((gv, (gr, gc)), shape=(r, off))
-        return Model(np.vstack(rest), np.vstack(edges), np.concatenate(ew), rows, weights, G)
+        for a, b, P in parts.overlaps(h / 3, offset=h / 6):
+            ia, wa, oka = point_rows(parts.lats[a], P)
+            ib, wb, okb = point_rows(parts.lats[b], P)
+            for t in np.flatnonzero(oka & okb):
+                gr += [r] * 16
+                gc += list(ia[t] + parts.offsets[a]) + list(ib[t] + parts.offsets[b])
+                gv += list(wa[t]) + list(-wb[t])
+                r += 1
+        G = sp.csr_matrix((gv, (gr, gc)), shape=(r, len(parts.rest)))
+        return Model(parts.rest, parts.edges, parts.edge_w, parts.rows, parts.weights, G)
+
+    @staticmethod
+    def hard_shared(V, F, h, sub=4):
+        """Every part its own lattice; no glue term: the two parts' copies of a grid cell share
+        each corner whose octant holds a point inside both parts (points: sub^3 per octant)."""
+        parts = PartLattices(V, F, h)
+        n = len(parts.rest)
+        parent = np.arange(n)
+
+        def find(x):
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        origin = parts.lats[0].origin
+        for a, b, P in parts.overlaps(h / (2 * sub), offset=h / (4 * sub), origin=origin):
+            g = np.floor((P - origin) / h).astype(np.int64)
+            f = (P - origin) / h - g
+            octant = (f[:, 0] >= 0.5) * 1 + (f[:, 1] >= 0.5) * 2 + (f[:, 2] >= 0.5) * 4
+            first = [{}, {}]
+            for side, k in enumerate((a, b)):
+                for c, cc in enumerate(parts.lats[k].cell_coords):
+                    first[side].setdefault(tuple(cc), c)
+            for gg, o in set(zip(map(tuple, g), octant)):
+                if gg in first[0] and gg in first[1]:
+                    na = parts.lats[a].cells[first[0][gg], o] + parts.offsets[a]
+                    nb = parts.lats[b].cells[first[1][gg], o] + parts.offsets[b]
+                    ra, rb = find(na), find(nb)
+                    parent[max(ra, rb)] = min(ra, rb)
+        _, new = np.unique([find(i) for i in range(n)], return_inverse=True)
+        rest = np.zeros((new.max() + 1, 3))
+        rest[new] = parts.rest  # united nodes sit at one grid point
+        E = np.sort(new[parts.edges], 1)
+        keep = E[:, 0] != E[:, 1]
+        key, inv = np.unique(E[keep, 0] * len(rest) + E[keep, 1], return_inverse=True)
+        w = np.bincount(inv, parts.edge_w[keep]) / np.bincount(inv)  # an edge of several parts: the mean
+        E = np.stack([key // len(rest), key % len(rest)], 1)
+        return Model(rest, E, w, new[parts.rows], parts.weights)
 
     def solve(self, V, groups, T, h, gamma=0.03, mu=10.0, iterations=30):
         """Flip-flops from the rest pose; returns the posed vertices (trilinear)."""
@@ -151,6 +213,24 @@ class Model:
         return V + np.einsum("vq,vqc->vc", self.weights, X[self.rows] - rest[self.rows])
 
 
+def cases(character_cells, comb_sizes):
+    """(name, size, V, F, h, groups, T, neighbour vertex sets, model size, moved tip, its length)"""
+    from conftest import diagonal
+    from larap import shapes
+    from test_junctions import finger_pose, hand_size
+    from test_topology import comb, comb_pose
+    V, F, parts = shapes.character()
+    groups, T = finger_pose(V, parts)
+    for cells in character_cells:
+        h = larap.Deformer(V, F, cells=cells).cell_size
+        yield ("character", f"{cells} cells", V, F, h, groups, T, [parts["fingers"][k] for k in (0, 2, 3)],
+               hand_size(V, parts), 3, 0.09)
+    for h in comb_sizes:
+        Vc, Fc, tine_ids, _ = comb(gap=0.1 * h)
+        gc, Tc = comb_pose(Vc, tine_ids, moved=1)
+        yield ("comb", f"h {h:.2f}", Vc, Fc, h, gc, Tc, [tine_ids[0], tine_ids[2]], diagonal(Vc), 2, 6.0)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--mu", type=float, nargs="+", default=[10.0, 100.0])
@@ -158,40 +238,21 @@ def main():
                    default=[4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000])
     p.add_argument("--comb-sizes", type=float, nargs="*", default=None)
     a = p.parse_args()
-    from larap import shapes
-    from test_junctions import finger_pose, hand_size
-    from test_topology import SWEEP_SIZES, comb, comb_pose
-    from conftest import diagonal
-    print("model | size | nodes engine / glued | glue rows | neighbours moved, % (engine lattice | glued, per mu) "
-          "| tip miss % (glued, per mu)")
-    V, F, parts = shapes.character()
-    groups, T = finger_pose(V, parts)
-    size = hand_size(V, parts)
-    for cells in a.character_cells:
-        h = larap.Deformer(V, F, cells=cells).cell_size
-        runs = [(Model.engine(V, F, h), None)] + [(None, mu) for mu in a.mu]
-        glued = Model.glued(V, F, h)
-        out, miss = [], []
-        for model, mu in runs:
-            X = (model or glued).solve(V, groups, T, h, mu=mu or 0.0)
-            out.append(100 * max(np.linalg.norm(X[f] - V[f], axis=1).max() for f in
-                                 (parts["fingers"][0], parts["fingers"][2], parts["fingers"][3])) / size)
-            tip = groups[3]
-            miss.append(100 * np.linalg.norm(X[tip] - (V[tip] @ T[3][:3, :3].T + T[3][:3, 3]), axis=1).max() / 0.09)
-        print(f"character | {cells} cells | {len(runs[0][0].rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | "
-              f"{out[0]:.2f} | " + " / ".join(f"{x:.2f}" for x in out[1:]) + " | " +
-              " / ".join(f"{x:.1f}" for x in miss[1:]), flush=True)
-    for h in (SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes):
-        V, F, tine_ids, _ = comb(gap=0.1 * h)
-        groups, T = comb_pose(V, tine_ids, moved=1)
-        engine, glued = Model.engine(V, F, h), Model.glued(V, F, h)
-        out = [engine.solve(V, groups, T, h)] + [glued.solve(V, groups, T, h, mu=mu) for mu in a.mu]
-        drag = [100 * max(np.linalg.norm(X[tine_ids[t]] - V[tine_ids[t]], axis=1).max() for t in (0, 2)) / diagonal(V)
-                for X in out]
-        miss = [100 * np.linalg.norm(X[groups[2]] - (V[groups[2]] @ T[2][:3, :3].T + T[2][:3, 3]), axis=1).max() / 6.0
-                for X in out[1:]]
-        print(f"comb | h {h:.2f} | {len(engine.rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | {drag[0]:.2f} | "
-              + " / ".join(f"{x:.2f}" for x in drag[1:]) + " | " + " / ".join(f"{x:.1f}" for x in miss), flush=True)
+    from test_topology import SWEEP_SIZES
+    print("model | size | nodes: engine / parts glued / parts sharing overlap corners | neighbours moved, % of the "
+          "diagonal: engine | glued, per mu | corners shared | moved tip's miss, % of its length: glued | shared")
+    for name, size, V, F, h, groups, T, others, diag, tip, length in cases(
+            a.character_cells, SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes):
+        engine, glued, shared = Model.engine(V, F, h), Model.glued(V, F, h), Model.hard_shared(V, F, h)
+        poses = ([engine.solve(V, groups, T, h)] + [glued.solve(V, groups, T, h, mu=mu) for mu in a.mu]
+                 + [shared.solve(V, groups, T, h)])
+        drag = [100 * max(np.linalg.norm(X[o] - V[o], axis=1).max() for o in others) / diag for X in poses]
+        g, M = groups[tip], T[tip]
+        miss = [100 * np.linalg.norm(X[g] - (V[g] @ M[:3, :3].T + M[:3, 3]), axis=1).max() / length
+                for X in (poses[1], poses[-1])]
+        print(f"{name} | {size} | {len(engine.rest)} / {len(glued.rest)} / {len(shared.rest)} | {drag[0]:.2f} | "
+              + " / ".join(f"{x:.2f}" for x in drag[1:-1]) + f" | {drag[-1]:.2f} | {miss[0]:.1f} | {miss[1]:.1f}",
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -11,13 +11,15 @@ model's lower corner), and the energy gains
 
     mu * gamma_eff * sum_p |B_a(p) x - B_b(p) x|^2
 
-over sample points p (a grid of spacing h/3) inside two parts a and b (generalised winding
-number), B_a(p) the trilinear row of p in part a's lattice. The rest is the engine's energy
-(node rotations, the lattice's edge weights, group-normalised handles, gamma_eff over all edges);
-the baseline column runs the same solver on the engine's own lattice (it reproduces the engine's
-trilinear figures). Trilinear transfer only.
+over points p inside two parts a and b (generalised winding number): a grid of spacing h/6 and
+the vertices of either part inside the other; B_a(p) is the trilinear row of p in part a's
+lattice. The rest is the engine's energy (node rotations, the lattice's edge weights,
+group-normalised handles, gamma_eff over all edges); the baseline column runs the same solver on
+the engine's own lattice (it reproduces the engine's trilinear figures). Trilinear transfer only.
+Also the glue-free variant (Model.hard_shared) and mu = 0, the control (the parts simply apart).
+Results and what they say: scripts/experiments/README.md.
 
-    PYTHONPATH=python /usr/bin/python3 scripts/experiments/glued_parts.py [--mu 10 100]
+    PYTHONPATH=python /usr/bin/python3 scripts/experiments/glued_parts.py [--mu 0 10 100]
         [--character-cells 4000 ... 9000] [--comb-sizes 0.25 ... 1.05]"""
 import argparse
 import os
@@ -69,6 +71,7 @@ class PartLattices:
         n, tris = len(V), triangles(F)
         A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
         self.count, comp = cg.connected_components(A + A.T, directed=False)
+        self.comp = comp
         lo = V.min(0)
         self.lats, self.offsets, rest, edges, ew = [], [], [], [], []
         self.rows, self.weights, off = np.zeros((n, 8), np.int64), np.zeros((n, 8)), 0
@@ -88,9 +91,10 @@ class PartLattices:
         self.inside = [winding_inside(V, tris[comp[tris[:, 0]] == c]) for c in range(self.count)]
         self.box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(self.count)]
 
-    def overlaps(self, spacing, offset, origin=None):
+    def overlaps(self, spacing, offset, origin=None, V=None):
         """(a, b, points inside both parts a < b) on a grid of `spacing` (through origin + offset
-        when given, else from the boxes' overlap + offset)."""
+        when given, else from the boxes' overlap + offset), and with V the vertices of either part
+        inside the other."""
         for a in range(self.count):
             for b in range(a + 1, self.count):
                 blo = np.maximum(self.box[a][0], self.box[b][0])
@@ -107,6 +111,9 @@ class PartLattices:
                     continue
                 P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
                 P = P[self.inside[a](P) & self.inside[b](P)]
+                if V is not None:
+                    Va, Vb = V[self.comp == a], V[self.comp == b]
+                    P = np.vstack([P, Va[self.inside[b](Va)], Vb[self.inside[a](Vb)]])
                 if len(P):
                     yield a, b, P
 
@@ -125,11 +132,12 @@ class Model:
         return Model(lat.rest, lat.edges, d.lattice_edge_weights(), lat.tri_ids, lat.tri_w)
 
     @staticmethod
-    def glued(V, F, h):
-        """Every part its own lattice; glue rows at points (spacing h/3) inside two parts."""
+    def glued(V, F, h, spacing=1.0 / 6.0):
+        """Every part its own lattice; glue rows at points inside two parts: a grid of `spacing`
+        cells, and the vertices of either part inside the other."""
         parts = PartLattices(V, F, h)
         gr, gc, gv, r = [], [], [], 0
-        for a, b, P in parts.overlaps(h / 3, offset=h / 6):
+        for a, b, P in parts.overlaps(spacing * h, offset=spacing * h / 2, V=V):
             ia, wa, oka = point_rows(parts.lats[a], P)
             ib, wb, okb = point_rows(parts.lats[b], P)
             for t in np.flatnonzero(oka & okb):
@@ -214,45 +222,54 @@ class Model:
 
 
 def cases(character_cells, comb_sizes):
-    """(name, size, V, F, h, groups, T, neighbour vertex sets, model size, moved tip, its length)"""
+    """(name, size, V, F, h, {pose name: (groups, T)}, neighbour vertex sets, model size, moved tip
+    group, its length). Poses: "roots held", the tests' (the palm's group takes the fingers' roots
+    inside the palm); "part held", the palm's (base's) group holds its own part only, so a finger
+    is joined to it by nothing but the lattice (or the glue)."""
     from conftest import diagonal
     from larap import shapes
     from test_junctions import finger_pose, hand_size
     from test_topology import comb, comb_pose
     V, F, parts = shapes.character()
     groups, T = finger_pose(V, parts)
+    fingers = np.concatenate(parts["fingers"])
+    own = [np.setdiff1d(groups[0], fingers), np.setdiff1d(groups[1], fingers)] + groups[2:]
     for cells in character_cells:
         h = larap.Deformer(V, F, cells=cells).cell_size
-        yield ("character", f"{cells} cells", V, F, h, groups, T, [parts["fingers"][k] for k in (0, 2, 3)],
-               hand_size(V, parts), 3, 0.09)
+        yield ("character", f"{cells} cells", V, F, h, {"roots held": (groups, T), "part held": (own, T)},
+               [parts["fingers"][k] for k in (0, 2, 3)], hand_size(V, parts), 3, 0.09)
     for h in comb_sizes:
         Vc, Fc, tine_ids, _ = comb(gap=0.1 * h)
         gc, Tc = comb_pose(Vc, tine_ids, moved=1)
-        yield ("comb", f"h {h:.2f}", Vc, Fc, h, gc, Tc, [tine_ids[0], tine_ids[2]], diagonal(Vc), 2, 6.0)
+        own = [np.setdiff1d(gc[0], np.concatenate(tine_ids))] + gc[1:]
+        yield ("comb", f"h {h:.2f}", Vc, Fc, h, {"roots held": (gc, Tc), "part held": (own, Tc)},
+               [tine_ids[0], tine_ids[2]], diagonal(Vc), 2, 6.0)
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--mu", type=float, nargs="+", default=[10.0, 100.0])
+    p.add_argument("--mu", type=float, nargs="+", default=[0.0, 10.0, 100.0])
     p.add_argument("--character-cells", type=int, nargs="*",
                    default=[4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000])
     p.add_argument("--comb-sizes", type=float, nargs="*", default=None)
     a = p.parse_args()
     from test_topology import SWEEP_SIZES
-    print("model | size | nodes: engine / parts glued / parts sharing overlap corners | neighbours moved, % of the "
-          "diagonal: engine | glued, per mu | corners shared | moved tip's miss, % of its length: glued | shared")
-    for name, size, V, F, h, groups, T, others, diag, tip, length in cases(
+    print("model | size | pose | nodes: engine / parts (glued) | glue rows | neighbours moved, % of the diagonal: "
+          "engine | glued, mu " + " / ".join(f"{m:g}" for m in a.mu) + " | corners shared (no glue) "
+          "| moved tip's miss, % of its length: glued mu " + " / ".join(f"{m:g}" for m in a.mu))
+    for name, size, V, F, h, poses, others, diag, tip, length in cases(
             a.character_cells, SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes):
         engine, glued, shared = Model.engine(V, F, h), Model.glued(V, F, h), Model.hard_shared(V, F, h)
-        poses = ([engine.solve(V, groups, T, h)] + [glued.solve(V, groups, T, h, mu=mu) for mu in a.mu]
-                 + [shared.solve(V, groups, T, h)])
-        drag = [100 * max(np.linalg.norm(X[o] - V[o], axis=1).max() for o in others) / diag for X in poses]
-        g, M = groups[tip], T[tip]
-        miss = [100 * np.linalg.norm(X[g] - (V[g] @ M[:3, :3].T + M[:3, 3]), axis=1).max() / length
-                for X in (poses[1], poses[-1])]
-        print(f"{name} | {size} | {len(engine.rest)} / {len(glued.rest)} / {len(shared.rest)} | {drag[0]:.2f} | "
-              + " / ".join(f"{x:.2f}" for x in drag[1:-1]) + f" | {drag[-1]:.2f} | {miss[0]:.1f} | {miss[1]:.1f}",
-              flush=True)
+        for pose, (groups, T) in poses.items():
+            glued_poses = [glued.solve(V, groups, T, h, mu=mu) for mu in a.mu]
+            poses_all = [engine.solve(V, groups, T, h)] + glued_poses + [shared.solve(V, groups, T, h)]
+            drag = [100 * max(np.linalg.norm(X[o] - V[o], axis=1).max() for o in others) / diag for X in poses_all]
+            g, M = groups[tip], T[tip]
+            miss = [100 * np.linalg.norm(X[g] - (V[g] @ M[:3, :3].T + M[:3, 3]), axis=1).max() / length
+                    for X in glued_poses]
+            print(f"{name} | {size} | {pose} | {len(engine.rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | "
+                  f"{drag[0]:.2f} | " + " / ".join(f"{x:.2f}" for x in drag[1:-1]) + f" | {drag[-1]:.2f} | "
+                  + " / ".join(f"{x:.1f}" for x in miss), flush=True)
 
 
 if __name__ == "__main__":

@@ -97,7 +97,7 @@ def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
     assert (drag <= 1.05).sum() >= 4, drag
 
 
-@pytest.mark.xfail(strict=True, reason="not met yet (2026-11-23): at 6 of 10 lattice sizes "
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met yet (2026-11-23): at 6 of 10 lattice sizes "
                    "from 4000 to 9000 cells the other fingers move 1.6-3.1% of the hand. The cell "
                    "where the palm ends holds the roots of every finger joined through the palm's "
                    "end: its far nodes are shared by all the fingers and rise with the turned one "

@@ -118,8 +118,9 @@ def test_comb_at_every_alignment_mostly_meets_the_target():
                    "1.0-2.3%). The cell where the base ends holds the roots of every tine joined "
                    "through the base's end; its far nodes rise with the turned tine and tilt its "
                    "neighbours' roots, whether or not the tines share a cell (docs/method.md, "
-                   "'What splitting cannot separate'). Junctions made of the parts themselves, "
-                   "glued where they overlap, would separate them; not built")
+                   "'What splitting cannot separate'). Per-part lattices glued where the parts "
+                   "overlap met it on this comb in a reference solver but not on the character "
+                   "(scripts/experiments/glued_parts.py); not built")
 def test_comb_at_every_alignment_meets_the_target():
     rows = comb_sweep()
     assert rows[:, 0].max() <= 1.0, rows[:, 0]

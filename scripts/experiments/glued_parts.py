@@ -67,7 +67,9 @@ class PartLattices:
     part, its grid origin pinned by a loose vertex at the model's lower corner; nodes numbered
     part after part."""
 
-    def __init__(self, V, F, h):
+    def __init__(self, V, F, h, part_h=None):
+        """part_h(vertex ids of a part) -> that part's cell size (default h); the edges of a part
+        with cells of size hp weigh hp / h (the same strain energy per volume)."""
         n, tris = len(V), triangles(F)
         A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
         self.count, comp = cg.connected_components(A + A.T, directed=False)
@@ -80,11 +82,12 @@ class PartLattices:
             loc = -np.ones(n, np.int64)
             loc[ids] = np.arange(len(ids))
             Vc = np.vstack([V[ids], lo[None]])
-            dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=h, weights="trilinear")
+            hp = h if part_h is None else part_h(ids)
+            dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=hp, weights="trilinear")
             lat = Lat(dc, Vc)
             self.lats.append(lat)
             self.offsets.append(off)
-            rest.append(lat.rest), edges.append(lat.edges + off), ew.append(dc.lattice_edge_weights())
+            rest.append(lat.rest), edges.append(lat.edges + off), ew.append(dc.lattice_edge_weights() * hp / h)
             self.rows[ids], self.weights[ids] = lat.tri_ids[:len(ids)] + off, lat.tri_w[:len(ids)]
             off += lat.nr
         self.rest, self.edges, self.edge_w = np.vstack(rest), np.vstack(edges), np.concatenate(ew)
@@ -132,10 +135,10 @@ class Model:
         return Model(lat.rest, lat.edges, d.lattice_edge_weights(), lat.tri_ids, lat.tri_w)
 
     @staticmethod
-    def glued(V, F, h, spacing=1.0 / 6.0):
+    def glued(V, F, h, spacing=1.0 / 6.0, part_h=None):
         """Every part its own lattice; glue rows at points inside two parts: a grid of `spacing`
         cells, and the vertices of either part inside the other."""
-        parts = PartLattices(V, F, h)
+        parts = PartLattices(V, F, h, part_h)
         gr, gc, gv, r = [], [], [], 0
         for a, b, P in parts.overlaps(spacing * h, offset=spacing * h / 2, V=V):
             ia, wa, oka = point_rows(parts.lats[a], P)

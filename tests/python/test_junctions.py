@@ -68,12 +68,18 @@ def test_character_finger_turned_leaves_its_neighbours(weights):
 CHARACTER_CELLS = (4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000)
 
 
-def character_sweep():
+def character_sweep(palm_part_only=False):
     """Per lattice size, the other fingers' largest move (% of the hand's diagonal) with the worse
-    of the two weight kinds, for finger_pose after 30 flip-flops."""
-    if not hasattr(character_sweep, "drag"):
+    of the two weight kinds, for finger_pose after 30 flip-flops; palm_part_only: the palm's group
+    (and the body's) without the fingers' roots inside the palm, as an artist who pins the palm
+    object has it (a finger is then held to the palm by the lattice alone)."""
+    key = "drag_palm_part" if palm_part_only else "drag"
+    if not hasattr(character_sweep, key):
         V, F, parts = shapes.character()
         groups, T = finger_pose(V, parts)
+        if palm_part_only:
+            fingers = np.concatenate(parts["fingers"])
+            groups = [np.setdiff1d(g, fingers) for g in groups[:2]] + groups[2:]
         size, drag = hand_size(V, parts), []
         for cells in CHARACTER_CELLS:
             worst = 0.0
@@ -84,8 +90,8 @@ def character_sweep():
                 worst = max([worst] + [np.linalg.norm(X[parts["fingers"][k]] - V[parts["fingers"][k]], axis=1).max()
                                        for k in (0, 2, 3)])
             drag.append(100 * worst / size)
-        character_sweep.drag = np.array(drag)
-    return character_sweep.drag
+        setattr(character_sweep, key, np.array(drag))
+    return getattr(character_sweep, key)
 
 
 def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
@@ -97,6 +103,15 @@ def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
     assert (drag <= 1.05).sum() >= 4, drag
 
 
+def test_character_with_the_palm_part_held_stays_within_the_measured_bounds():
+    """The same with the palm's group holding the palm part alone (2026-11-23: 1 of 10 sizes within
+    1%, median 2.0%, worst 4.1%): worse than with the roots held, a guard, not the target."""
+    drag = character_sweep(palm_part_only=True)
+    assert np.median(drag) <= 2.3, drag
+    assert drag.max() <= 4.5, drag
+    assert (drag <= 1.0).sum() >= 1, drag
+
+
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met yet (2026-11-23): at 6 of 10 lattice sizes "
                    "from 4000 to 9000 cells the other fingers move 1.6-3.1% of the hand. The cell "
                    "where the palm ends holds the roots of every finger joined through the palm's "
@@ -104,6 +119,7 @@ def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
                    "(docs/method.md, 'What splitting cannot separate')")
 def test_character_at_every_lattice_size_meets_the_target():
     assert character_sweep().max() <= 1.0, character_sweep()
+    assert character_sweep(palm_part_only=True).max() <= 1.0, character_sweep(palm_part_only=True)
 
 
 def test_bspline_pose_has_no_step_where_the_fingers_leave_the_palm():

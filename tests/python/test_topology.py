@@ -119,7 +119,8 @@ def test_comb_at_every_alignment_mostly_meets_the_target():
                    "through the base's end; its far nodes rise with the turned tine and tilt its "
                    "neighbours' roots, whether or not the tines share a cell (docs/method.md, "
                    "'What splitting cannot separate'). Per-part lattices glued where the parts "
-                   "overlap met it on this comb in a reference solver but not on the character "
+                   "overlap met it on this comb in a reference solver (trilinear) but not on the "
+                   "character "
                    "(scripts/experiments/glued_parts.py); not built")
 def test_comb_at_every_alignment_meets_the_target():
     rows = comb_sweep()

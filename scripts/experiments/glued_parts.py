@@ -221,6 +221,7 @@ class Model:
             Re = np.einsum("tab,tb->ta", best_rotations(S)[i], e) * w[:, None]
             rhs = geff * (Dt @ Re) + bt
             X = np.stack([lu(rhs[:, c]) for c in range(3)], 1)
+        self.pose = X  # the lattice's pose, for the glue's residual G x
         return V + np.einsum("vq,vqc->vc", self.weights, X[self.rows] - rest[self.rows])
 
 

@@ -131,8 +131,8 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
                              update=_redraw, description="Edge length of a lattice cell (object units)")
     split_cells: BoolProperty(name="Parts Apart", default=True, update=_redraw,
                               description="Parts that pass close through one lattice cell (fingers, an eye and "
-                              "its lid) get their own copy of the cell, so moving one never drags the other. "
-                              "Off: one cell for everything inside it (the lattice of older versions)")
+                              "its lid) get their own copy of the cell, so moving one does not drag the other "
+                              "through it. Off: one cell for everything inside it (the lattice of older versions)")
     weights_interactive: EnumProperty(name="Dragging", items=WEIGHT_ITEMS, default="trilinear",
                                       description="How the mesh follows the lattice while you drag and in Live "
                                       "mode (Fast keeps dragging responsive)")

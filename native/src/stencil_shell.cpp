@@ -9,12 +9,8 @@
 namespace larap {
 namespace {
 
-constexpr int32_t kNone = kStencilNone, kAmbiguous = kStencilAmbiguous;
-
-inline int offset_index(int dx, int dy, int dz) { return stencil_offset_index(dx, dy, dz); }
-
 struct ItemSets {
-  std::vector<int32_t> parent, real;  // real: the real node a root stands for, or kNone
+  std::vector<int32_t> parent, real;  // real: the real node a root stands for, or kStencilNone
   int32_t find(int32_t x) {
     while (parent[x] != x) x = parent[x] = parent[parent[x]];
     return x;
@@ -24,14 +20,15 @@ struct ItemSets {
 }  // namespace
 
 std::vector<int32_t> stencil_cover(const Lattice& lat, int64_t nodes) {
-  std::vector<int32_t> cover(static_cast<size_t>(27 * nodes), kNone);
+  std::vector<int32_t> cover(static_cast<size_t>(27 * nodes), kStencilNone);
   for (const auto& cn : lat.cell_nodes)
     for (int a = 0; a < 8; ++a)
       for (int b = 0; b < 8; ++b) {
-        const int k = offset_index((b & 1) - (a & 1), ((b >> 1) & 1) - ((a >> 1) & 1), (b >> 2) - (a >> 2));
+        const int k =
+            stencil_offset_index((b & 1) - (a & 1), ((b >> 1) & 1) - ((a >> 1) & 1), (b >> 2) - (a >> 2));
         int32_t& c = cover[size_t(27 * int64_t(cn[a]) + k)];
-        if (c == kNone) c = cn[b];
-        else if (c != cn[b]) c = kAmbiguous;
+        if (c == kStencilNone) c = cn[b];
+        else if (c != cn[b]) c = kStencilAmbiguous;
       }
   return cover;
 }
@@ -47,7 +44,7 @@ void build_stencil_shell(Lattice& lat) {
   sets.parent.resize(size_t(ni));
   std::iota(sets.parent.begin(), sets.parent.end(), 0);
   sets.real.resize(size_t(ni));
-  for (int64_t i = 0; i < ni; ++i) sets.real[i] = cover[i] >= 0 ? cover[i] : kNone;
+  for (int64_t i = 0; i < ni; ++i) sets.real[i] = cover[i] >= 0 ? cover[i] : kStencilNone;
   // Items of the two ends of an edge that name the same grid point are one node.
   for (const auto& e : lat.edges) {
     const int32_t u = e[0], v = e[1];
@@ -60,10 +57,10 @@ void build_stencil_shell(Lattice& lat) {
         for (int dx = -1; dx <= 1; ++dx) {
           int d[3] = {dx, dy, dz};
           if (d[axis] < 0) continue;
-          const int32_t iu = int32_t(27 * u + offset_index(d[0], d[1], d[2]));
+          const int32_t iu = int32_t(27 * u + stencil_offset_index(d[0], d[1], d[2]));
           d[axis] -= 1;
-          const int32_t iv = int32_t(27 * v + offset_index(d[0], d[1], d[2]));
-          if (cover[iu] == kAmbiguous || cover[iv] == kAmbiguous) continue;
+          const int32_t iv = int32_t(27 * v + stencil_offset_index(d[0], d[1], d[2]));
+          if (cover[iu] == kStencilAmbiguous || cover[iv] == kStencilAmbiguous) continue;
           const int32_t ru = sets.find(iu), rv = sets.find(iv);
           if (ru == rv) continue;
           const int32_t pu = sets.real[ru], pv = sets.real[rv];
@@ -116,7 +113,7 @@ void build_stencil_shell(Lattice& lat) {
       lat.stencil27[i] = sets.real[r];
       continue;
     }
-    const int32_t key = cover[i] == kAmbiguous ? int32_t(i) : r;
+    const int32_t key = cover[i] == kStencilAmbiguous ? int32_t(i) : r;
     if (shell_of_root[key] < 0) {
       shell_of_root[key] = int32_t(shell_item.size());
       shell_item.push_back(int32_t(i));

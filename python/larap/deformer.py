@@ -14,7 +14,6 @@ from .io import faces_to_csr
 DEFAULT_GAMMA = _core.DEFAULT_GAMMA  # the engine's default stiffness (native/include/larap/deformer.h)
 
 
-
 def available_devices() -> list[str]:
     """Devices this build can use now: always "cpu", plus "cuda" when a usable GPU is present."""
     return list(_core.available_devices())

@@ -41,20 +41,22 @@ class Lat:
         self.cell_coords = d._core.cell_coords().astype(np.int64)
         c = self.V.mean(0)
         self.s = float(np.sqrt(((self.V - c) ** 2).sum(1).mean()))
-        cell, frac = d.trilinear_binding()
+        cell, _ = d.trilinear_binding()  # its float32 fractions are refined from V below
         self.vcell = cell.astype(np.int64)
-        f = frac.astype(np.float64)
-        # trilinear rows (per vertex 8 ids / weights); float32 fractions are refined from V
-        lo = self.rest[self.cells[self.vcell, 0]]
-        f = np.clip((self.V - lo) / self.h, 0.0, 1.0)
-        ids = np.empty((len(V), 8), np.int64)
-        w = np.empty((len(V), 8))
+        self.tri_ids, self.tri_w = self.trilinear_rows(self.vcell, self.V)
+        self._bs = None
+
+    def trilinear_rows(self, cells, P):
+        """(ids, weights), n by 8, of points P read in the cell copies `cells` (corner q at
+        (q & 1, q >> 1 & 1, q >> 2))."""
+        f = np.clip((P - self.rest[self.cells[cells, 0]]) / self.h, 0.0, 1.0)
+        ids = np.empty((len(P), 8), np.int64)
+        w = np.empty((len(P), 8))
         for q in range(8):
             b = np.array([q & 1, (q >> 1) & 1, q >> 2])
-            ids[:, q] = self.cells[self.vcell, q]
+            ids[:, q] = self.cells[cells, q]
             w[:, q] = np.prod(np.where(b == 1, f, 1.0 - f), axis=1)
-        self.tri_ids, self.tri_w = ids, w
-        self._bs = None
+        return ids, w
 
     def tri_matrix(self, rows=None):
         ids, w = self.tri_ids, self.tri_w

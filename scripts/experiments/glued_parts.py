@@ -36,10 +36,7 @@ sys.path[:0] = [os.path.join(REPO, "python"), os.path.join(REPO, "tests", "pytho
 
 import larap  # noqa: E402
 from arap_variants import Lat, best_rotations, winding_inside  # noqa: E402
-
-
-def triangles(F):
-    return np.array([[p[0], p[j], p[j + 1]] for p in F for j in range(1, len(p) - 1)])
+from conftest import triangles  # noqa: E402
 
 
 def point_rows(lat, P):
@@ -48,17 +45,12 @@ def point_rows(lat, P):
     first = {}
     for c, cc in enumerate(lat.cell_coords):
         first.setdefault(tuple(cc), c)
-    g = np.floor((P - lat.origin) / lat.h).astype(np.int64)
-    ids, w, ok = np.zeros((len(P), 8), np.int64), np.zeros((len(P), 8)), np.zeros(len(P), bool)
-    for i, gg in enumerate(g):
-        c = first.get(tuple(gg))
-        if c is None:
-            continue
-        ok[i] = True
-        f = (P[i] - lat.rest[lat.cells[c, 0]]) / lat.h
-        for q in range(8):
-            b = np.array([q & 1, (q >> 1) & 1, q >> 2])
-            ids[i, q], w[i, q] = lat.cells[c, q], np.prod(np.where(b == 1, f, 1 - f))
+    cells = np.array([first.get(tuple(g), -1) for g in np.floor((P - lat.origin) / lat.h).astype(np.int64)],
+                     np.int64).reshape(-1)
+    ok = cells >= 0
+    ids, w = np.zeros((len(P), 8), np.int64), np.zeros((len(P), 8))
+    if ok.any():
+        ids[ok], w[ok] = lat.trilinear_rows(cells[ok], P[ok])
     return ids, w, ok
 
 

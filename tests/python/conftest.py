@@ -18,6 +18,30 @@ def rotation(axis, degrees):
     return np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K
 
 
+def affine(R=np.eye(3), t=(0, 0, 0), pivot=(0, 0, 0)):
+    """4x4 map x -> R (x - pivot) + pivot + t."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(pivot, float) - R @ np.asarray(pivot, float) + np.asarray(t, float)
+    return T
+
+
+def apply(T, X):
+    """Points X (n by 3) through the 4x4 map T."""
+    return X @ T[:3, :3].T + T[:3, 3]
+
+
+def need_cuda():
+    """A mark that skips a test where no usable CUDA device or build exists."""
+    import larap
+    return pytest.mark.skipif("cuda" not in larap.available_devices(), reason="no usable CUDA device/build")
+
+
+def cpu_and_cuda():
+    """Device parameters: "cpu", and "cuda" (skipped without a usable device)."""
+    return ["cpu", pytest.param("cuda", marks=need_cuda())]
+
+
 def diagonal(V):
     return float(np.linalg.norm(V.max(0) - V.min(0)))
 

@@ -3,7 +3,7 @@
 weights as a soft falloff, a warm start per lattice component; on every available device."""
 import numpy as np
 import pytest
-from conftest import diagonal, rotation
+from conftest import affine, apply, diagonal, rotation
 
 import larap
 from larap import shapes
@@ -11,18 +11,6 @@ from larap import shapes
 
 def tol(device, cpu, cuda):
     return cpu if device == "cpu" else cuda
-
-
-def affine(R=np.eye(3), t=(0, 0, 0), pivot=(0, 0, 0)):
-    """4x4 map x -> R (x - pivot) + pivot + t."""
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(pivot) - R @ np.asarray(pivot) + np.asarray(t)
-    return T
-
-
-def apply(T, X):
-    return X @ T[:3, :3].T + T[:3, 3]
 
 
 @pytest.fixture

@@ -7,20 +7,13 @@ around it: a strict xfail), and the final (B-spline) pose has no step where the 
 palm; rest, rigid and affine poses are still reproduced, on both devices."""
 import numpy as np
 import pytest
-from conftest import rotation
+from conftest import affine, cpu_and_cuda, need_cuda, rotation
 
 import larap
 from larap import shapes
 
-CUDA = pytest.mark.skipif("cuda" not in larap.available_devices(), reason="no usable CUDA device/build")
-DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
-
-
-def affine(R, pivot):
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(pivot, float) - R @ np.asarray(pivot, float)
-    return T
+DEVICES = cpu_and_cuda()
+CUDA = need_cuda()
 
 
 def finger_pose(V, parts, moved=1, degrees=60.0):
@@ -33,7 +26,7 @@ def finger_pose(V, parts, moved=1, degrees=60.0):
     tips = [f[V[f, 0] >= 0.86] for f in parts["fingers"]]
     groups = [body, palm] + tips
     T = np.stack([np.eye(4)] * len(groups))
-    T[2 + moved] = affine(rotation([0, 1, 0], -degrees), (parts["root_x"], 0.0, 1.42))
+    T[2 + moved] = affine(rotation([0, 1, 0], -degrees), pivot=(parts["root_x"], 0.0, 1.42))
     return groups, T
 
 
@@ -87,8 +80,8 @@ def character_sweep(palm_part_only=False):
                 d = larap.Deformer(V, F, weights=weights, cells=cells)
                 d.set_handle_groups(groups)
                 X = d.solve(transforms=T, iterations=30)
-                worst = max([worst] + [np.linalg.norm(X[parts["fingers"][k]] - V[parts["fingers"][k]], axis=1).max()
-                                       for k in (0, 2, 3)])
+                others = [parts["fingers"][k] for k in (0, 2, 3)]
+                worst = max([worst] + [np.linalg.norm(X[f] - V[f], axis=1).max() for f in others])
             drag.append(100 * worst / size)
         setattr(character_sweep, key, np.array(drag))
     return getattr(character_sweep, key)
@@ -154,7 +147,7 @@ def test_junction_stencils_keep_rest_and_rigid(device):
     size = hand_size(V, parts)
     X = d.solve(transforms=np.stack([np.eye(4)] * len(groups)), iterations=5)
     assert np.abs(X - V).max() <= tol * size
-    M = affine(rotation([1, 2, 3], 50), (0.8, 0.0, 1.4))
+    M = affine(rotation([1, 2, 3], 50), pivot=(0.8, 0.0, 1.4))
     X = d.solve(transforms=np.stack([M] * len(groups)), iterations=5)
     assert np.abs(X - (V @ M[:3, :3].T + M[:3, 3])).max() <= tol * size
 
@@ -170,4 +163,3 @@ def test_junction_stencils_agree_on_both_devices():
         out[dev] = d.solve(transforms=T, iterations=200)
     err = np.linalg.norm(out["cpu"] - out["cuda"], axis=1).max()
     assert err < 1e-4 * hand_size(V, parts), err / hand_size(V, parts)
-

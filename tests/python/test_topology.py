@@ -7,23 +7,12 @@ import os
 
 import numpy as np
 import pytest
-from conftest import diagonal, rotation
+from conftest import affine, apply, cpu_and_cuda, diagonal, rotation
 
 import larap
 from larap import shapes
 
 H = 1.0  # cell size of the generated models
-
-
-def affine(R=np.eye(3), pivot=(0, 0, 0)):
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.asarray(pivot, float) - R @ np.asarray(pivot, float)
-    return T
-
-
-def apply(T, X):
-    return X @ T[:3, :3].T + T[:3, 3]
 
 
 def comb(tines=3, gap=0.1, width=1.0, height=1.0, length=6.0):
@@ -120,8 +109,7 @@ def test_comb_at_every_alignment_mostly_meets_the_target():
                    "neighbours' roots, whether or not the tines share a cell (docs/method.md, "
                    "'What splitting cannot separate'). Per-part lattices glued where the parts "
                    "overlap met it on this comb in a reference solver (trilinear) but not on the "
-                   "character "
-                   "(scripts/experiments/glued_parts.py); not built")
+                   "character (scripts/experiments/glued_parts.py); not built")
 def test_comb_at_every_alignment_meets_the_target():
     rows = comb_sweep()
     assert rows[:, 0].max() <= 1.0, rows[:, 0]
@@ -168,9 +156,7 @@ def test_split_copies_weigh_their_material():
     assert np.all(plain.cell_weights() == 1.0) and np.all(plain.lattice_edge_weights() == 1.0)
 
 
-@pytest.mark.parametrize("device", [
-    "cpu", pytest.param("cuda", marks=pytest.mark.skipif("cuda" not in larap.available_devices(),
-                                                         reason="no usable CUDA device/build"))])
+@pytest.mark.parametrize("device", cpu_and_cuda())
 def test_weighted_lattice_keeps_rest_rigid_and_descent(device):
     """On the comb's weighted lattice: targets at rest give the rest pose, one rigid motion of
     every handle gives that motion, and the energy never increases."""

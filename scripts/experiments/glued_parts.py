@@ -59,13 +59,16 @@ class PartLattices:
     part, its grid origin pinned by a loose vertex at the model's lower corner; nodes numbered
     part after part."""
 
-    def __init__(self, V, F, h, part_h=None):
+    def __init__(self, V, F, h, part_h=None, align_trunk=False):
         """part_h(vertex ids of a part) -> that part's cell size (default h); the edges of a part
-        with cells of size hp weigh hp / h (the same strain energy per volume)."""
+        with cells of size hp weigh hp / h (the same strain energy per volume). align_trunk: a
+        part that smaller parts overlap (a palm, a comb's base) gets its grid shifted along one
+        axis so that a node plane lies at its end where they leave it (trunk_anchor)."""
         n, tris = len(V), triangles(F)
         A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
         self.count, comp = cg.connected_components(A + A.T, directed=False)
         self.comp = comp
+        self.box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(self.count)]
         lo = V.min(0)
         self.lats, self.offsets, rest, edges, ew = [], [], [], [], []
         self.rows, self.weights, off = np.zeros((n, 8), np.int64), np.zeros((n, 8)), 0
@@ -73,7 +76,8 @@ class PartLattices:
             ids = np.flatnonzero(comp == c)
             loc = -np.ones(n, np.int64)
             loc[ids] = np.arange(len(ids))
-            Vc = np.vstack([V[ids], lo[None]])
+            anchor = self.trunk_anchor(V, c, lo, h) if align_trunk else lo
+            Vc = np.vstack([V[ids], anchor[None]])
             hp = h if part_h is None else part_h(ids)
             dc = larap.Deformer(Vc, [loc[p] for p in F if comp[p[0]] == c], cell_size=hp, weights="trilinear")
             lat = Lat(dc, Vc)
@@ -84,7 +88,29 @@ class PartLattices:
             off += lat.nr
         self.rest, self.edges, self.edge_w = np.vstack(rest), np.vstack(edges), np.concatenate(ew)
         self.inside = [winding_inside(V, tris[comp[tris[:, 0]] == c]) for c in range(self.count)]
-        self.box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(self.count)]
+
+    def trunk_anchor(self, V, c, lo, h):
+        """The grid anchor (lower corner) of part c: lo, except along the axis where the smaller
+        parts overlapping c mostly leave it (by their centres), where a node plane is put at c's
+        end on that side."""
+        lo_c, hi_c = self.box[c]
+        centre = V[self.comp == c].mean(0)
+        votes = np.zeros(3)
+        for b in range(self.count):
+            blo, bhi = self.box[b]
+            if b == c or np.any(np.maximum(lo_c, blo) >= np.minimum(hi_c, bhi)):
+                continue
+            if np.prod(bhi - blo) >= np.prod(hi_c - lo_c):
+                continue
+            d = V[self.comp == b].mean(0) - centre
+            k = int(np.argmax(np.abs(d) / (hi_c - lo_c)))
+            votes[k] += np.sign(d[k])
+        anchor = lo.copy()
+        k = int(np.argmax(np.abs(votes)))
+        if votes[k] != 0:
+            end = hi_c[k] if votes[k] > 0 else lo_c[k]
+            anchor[k] = end - np.ceil((end - lo[k]) / h + 1e-9) * h
+        return anchor
 
     def overlaps(self, spacing, offset, origin=None, V=None):
         """(a, b, points inside both parts a < b) on a grid of `spacing` (through origin + offset
@@ -127,10 +153,10 @@ class Model:
         return Model(lat.rest, lat.edges, d.lattice_edge_weights(), lat.tri_ids, lat.tri_w)
 
     @staticmethod
-    def glued(V, F, h, spacing=1.0 / 6.0, part_h=None):
+    def glued(V, F, h, spacing=1.0 / 6.0, part_h=None, align_trunk=False):
         """Every part its own lattice; glue rows at points inside two parts: a grid of `spacing`
         cells, and the vertices of either part inside the other."""
-        parts = PartLattices(V, F, h, part_h)
+        parts = PartLattices(V, F, h, part_h, align_trunk)
         gr, gc, gv, r = [], [], [], 0
         for a, b, P in parts.overlaps(spacing * h, offset=spacing * h / 2, V=V):
             ia, wa, oka = point_rows(parts.lats[a], P)
@@ -182,8 +208,10 @@ class Model:
         E = np.stack([key // len(rest), key % len(rest)], 1)
         return Model(rest, E, w, new[parts.rows], parts.weights)
 
-    def solve(self, V, groups, T, h, gamma=0.03, mu=10.0, iterations=30):
-        """Flip-flops from the rest pose; returns the posed vertices (trilinear)."""
+    def solve(self, V, groups, T, h, gamma=0.03, mu=10.0, iterations=30, group_weights=None):
+        """Flip-flops from the rest pose; returns the posed vertices (trilinear). group_weights:
+        a weight per group (default 1: groups weigh the same, whatever their size)."""
+        gw = np.ones(len(groups)) if group_weights is None else np.asarray(group_weights, float)
         rest, nr = self.rest, len(self.rest)
         E = self.edges
         i, k = np.concatenate([E[:, 0], E[:, 1]]), np.concatenate([E[:, 1], E[:, 0]])
@@ -196,7 +224,7 @@ class Model:
         Dt = sp.csr_matrix((np.concatenate([np.ones_like(w), -np.ones_like(w)]),
                             (np.concatenate([i, k]), np.concatenate([t, t]))), shape=(nr, len(i)))
         hr = np.concatenate(groups)
-        alpha = np.concatenate([np.full(len(g), 1.0 / len(groups) / len(g)) for g in groups])
+        alpha = np.concatenate([np.full(len(g), gw[j] / len(groups) / len(g)) for j, g in enumerate(groups)])
         target = np.concatenate([V[g] @ T[j][:3, :3].T + T[j][:3, 3] for j, g in enumerate(groups)])
         m = len(hr)
         B = sp.csr_matrix((self.weights[hr].ravel(), (np.repeat(np.arange(m), 8), self.rows[hr].ravel())), shape=(m, nr))
@@ -248,8 +276,13 @@ def main():
     p.add_argument("--character-cells", type=int, nargs="*",
                    default=[4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000])
     p.add_argument("--comb-sizes", type=float, nargs="*", default=None)
+    p.add_argument("--align-trunk", type=float, metavar="W", default=None,
+                   help="instead: the glue (first --mu) with the palm's lattice as it is and aligned "
+                        "to its end, the held groups weighing 1 and W; drag and the glue's gap")
     a = p.parse_args()
     from test_topology import SWEEP_SIZES
+    if a.align_trunk is not None:
+        return trunk_table(a, SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes)
     print("model | size | pose | nodes: engine / parts (glued) | glue rows | neighbours moved, % of the diagonal: "
           "engine | glued, mu " + " / ".join(f"{m:g}" for m in a.mu) + " | corners shared (no glue) "
           "| moved tip's miss, % of its length: glued mu " + " / ".join(f"{m:g}" for m in a.mu))
@@ -266,6 +299,28 @@ def main():
             print(f"{name} | {size} | {pose} | {len(engine.rest)} / {len(glued.rest)} | {glued.glue.shape[0]} | "
                   f"{drag[0]:.2f} | " + " / ".join(f"{x:.2f}" for x in drag[1:-1]) + f" | {drag[-1]:.2f} | "
                   + " / ".join(f"{x:.1f}" for x in miss), flush=True)
+
+
+def trunk_table(a, comb_sizes):
+    """Per size and pose, glue weight a.mu[0]: the neighbours' largest move and the glue's largest
+    gap |G x| (how far a point of one part moves from the same point of the other), in % of the
+    diagonal, for the palm's (base's) lattice on the model's grid or aligned to its end
+    (PartLattices.trunk_anchor), the held groups (all but the tips) weighing 1 or a.align_trunk."""
+    mu, W = a.mu[0], a.align_trunk
+    print(f"model | size | pose | neighbours moved / glue gap, % of the diagonal, mu {mu:g}: "
+          f"grid, held 1 | grid, held {W:g} | aligned, held 1 | aligned, held {W:g}")
+    for name, size, V, F, h, poses, others, diag, tip, length in cases(a.character_cells, comb_sizes):
+        models = [Model.glued(V, F, h), Model.glued(V, F, h, align_trunk=True)]
+        for pose, (groups, T) in poses.items():
+            held = len(groups) - len(others) - 1  # the groups before the tips
+            out = []
+            for m in models:
+                for w in (1.0, W):
+                    X = m.solve(V, groups, T, h, mu=mu, group_weights=[w] * held + [1.0] * (len(groups) - held))
+                    drag = 100 * max(np.linalg.norm(X[o] - V[o], axis=1).max() for o in others) / diag
+                    gap = 100 * np.linalg.norm(m.glue @ m.pose, axis=1).max() / diag
+                    out.append(f"{drag:.2f} / {gap:.2f}")
+            print(f"{name} | {size} | {pose} | " + " | ".join(out), flush=True)
 
 
 if __name__ == "__main__":

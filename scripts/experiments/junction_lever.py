@@ -142,7 +142,8 @@ def main():
                         where = f" (first cell past the palm's end {move[near].max():.2f}, last {move[far].max():.2f})"
                 st.append(stretch(V, X, F, np.flatnonzero(comp == comp[groups[tip][0]])))
             print(f"{name} | {size} | {pose} | {lever:.2f} | {masks[0].sum()} / {masks[1].sum()} | "
-                  + f"{drag[0]:.2f}{where} | " + " | ".join(f"{x:.2f}" for x in drag[1:]) + " | " + " | ".join(f"{x:.0f}" for x in st), flush=True)
+                  + f"{drag[0]:.2f}{where} | " + " | ".join(f"{x:.2f}" for x in drag[1:]) + " | "
+                  + " | ".join(f"{x:.0f}" for x in st), flush=True)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,10 @@ Also the glue-free variant (Model.hard_shared) and mu = 0, the control (the part
 Results and what they say: scripts/experiments/README.md.
 
     PYTHONPATH=python /usr/bin/python3 scripts/experiments/glued_parts.py [--mu 0 10 100]
-        [--character-cells 4000 ... 9000] [--comb-sizes 0.25 ... 1.05]"""
+        [--character-cells 4000 ... 9000] [--comb-sizes 0.25 ... 1.05]
+    PYTHONPATH=python /usr/bin/python3 scripts/experiments/glued_parts.py --mu 1000 --align-trunk 100
+        (the palm's lattice on the model's grid or aligned to its end, the held groups weighing 1
+        or 100: drag and the glue's gap; trunk_table)"""
 import argparse
 import os
 import sys
@@ -305,12 +308,21 @@ def trunk_table(a, comb_sizes):
     """Per size and pose, glue weight a.mu[0]: the neighbours' largest move and the glue's largest
     gap |G x| (how far a point of one part moves from the same point of the other), in % of the
     diagonal, for the palm's (base's) lattice on the model's grid or aligned to its end
-    (PartLattices.trunk_anchor), the held groups (all but the tips) weighing 1 or a.align_trunk."""
+    (PartLattices.trunk_anchor), the held groups (all but the tips) weighing 1 or a.align_trunk.
+    The character gets a third pose, "whole part held": the palm's group is its whole part (the
+    other poses' palm groups stop 5 mm before the palm's end, where the fingers leave it)."""
     mu, W = a.mu[0], a.align_trunk
     print(f"model | size | pose | neighbours moved / glue gap, % of the diagonal, mu {mu:g}: "
           f"grid, held 1 | grid, held {W:g} | aligned, held 1 | aligned, held {W:g}")
     for name, size, V, F, h, poses, others, diag, tip, length in cases(a.character_cells, comb_sizes):
         models = [Model.glued(V, F, h), Model.glued(V, F, h, align_trunk=True)]
+        if name == "character":  # the palm's group holding its whole part, its end face too
+            groups, T = poses["part held"]
+            n, tris = len(V), triangles(F)
+            A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
+            comp = cg.connected_components(A + A.T, directed=False)[1]
+            palm = comp[groups[1][np.argmax(V[groups[1], 0])]]
+            poses = dict(poses, **{"whole part held": ([groups[0], np.flatnonzero(comp == palm)] + groups[2:], T)})
         for pose, (groups, T) in poses.items():
             held = len(groups) - len(others) - 1  # the groups before the tips
             out = []

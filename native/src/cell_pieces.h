@@ -18,8 +18,9 @@
 // 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
 //    analysed cells connect when material voxels touch across the face; a piece connects to a
 //    non-analysed kept neighbour when it has material on the shared face.
-// Two surfaces more than 2 h / k apart always have a voxel of air between them, so they separate
-// (if the air between them reaches a seed); closer ones may merge.
+// Two surfaces facing along an axis more than 2 h / k apart always have a voxel of air between
+// them, so they separate (if the air between them reaches a seed); at an angle to the axes they
+// must be farther apart, up to 2 sqrt(3) h / k (docs/method.md); closer ones may merge.
 #pragma once
 #include <larap/mesh.h>
 

@@ -61,19 +61,26 @@ def test_character_finger_turned_leaves_its_neighbours(weights):
 CHARACTER_CELLS = (4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000)
 
 
-def character_sweep(palm_part_only=False):
+def character_sweep(palm_part_only=False, turned=0.0):
     """Per lattice size, the other fingers' largest move (% of the hand's diagonal) with the worse
     of the two weight kinds, for finger_pose after 30 flip-flops; palm_part_only: the palm's group
     (and the body's) without the fingers' roots inside the palm, as an artist who pins the palm
-    object has it (a finger is then held to the palm by the lattice alone)."""
-    key = "drag_palm_part" if palm_part_only else "drag"
+    object has it (a finger is then held to the palm by the lattice alone); turned: the whole
+    character turned that many degrees about the vertical axis, so that the hand lies at an angle
+    to the lattice's axes (the pose turned with it)."""
+    key = ("drag_palm_part" if palm_part_only else "drag") + (f"_turned_{turned:g}" if turned else "")
     if not hasattr(character_sweep, key):
         V, F, parts = shapes.character()
         groups, T = finger_pose(V, parts)
         if palm_part_only:
             fingers = np.concatenate(parts["fingers"])
             groups = [np.setdiff1d(g, fingers) for g in groups[:2]] + groups[2:]
-        size, drag = hand_size(V, parts), []
+        size = hand_size(V, parts)  # the unturned hand's: the same yardstick at every angle
+        if turned:
+            turn = affine(rotation([0, 0, 1], turned))
+            V = V @ turn[:3, :3].T
+            T = np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
+        drag = []
         for cells in CHARACTER_CELLS:
             worst = 0.0
             for weights in ("trilinear", "bspline"):
@@ -115,6 +122,32 @@ def test_character_with_the_palm_part_held_stays_within_the_measured_bounds():
 def test_character_at_every_lattice_size_meets_the_target():
     assert character_sweep().max() <= 1.0, character_sweep()
     assert character_sweep(palm_part_only=True).max() <= 1.0, character_sweep(palm_part_only=True)
+
+
+TURNED = (15.0, 30.0, 45.0)
+
+
+def turned_sweeps():
+    return np.concatenate([character_sweep(turned=a) for a in TURNED])
+
+
+def test_character_at_an_angle_to_the_grid_stays_within_the_measured_bounds():
+    """The character turned 15, 30 and 45 degrees about the vertical, so that its hands lie at an
+    angle to the lattice (as most characters' hands do), at the same 10 sizes: what the engine does
+    today (2026-11-23: 4 of 30 within 1%, median 2.8%, worst 21.1%, at 15 degrees and 4,000 cells:
+    fingers 0.1 cell apart at an angle merge in the voxels of a cell, and the junction's cells
+    reach farther along the fingers). A guard against getting worse, not the target."""
+    drag = turned_sweeps()
+    assert np.median(drag) <= 3.2, drag
+    assert drag.max() <= 23.0, drag
+    assert (drag <= 1.0).sum() >= 4, drag
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met (2026-11-23): with the hand at an "
+                   "angle to the lattice the other fingers move up to 21% of the hand (26 of 30 "
+                   "sizes and angles over 1%); docs/method.md, 'What splitting cannot separate'")
+def test_character_at_an_angle_to_the_grid_meets_the_target():
+    assert turned_sweeps().max() <= 1.0, turned_sweeps()
 
 
 def test_bspline_pose_has_no_step_where_the_fingers_leave_the_palm():

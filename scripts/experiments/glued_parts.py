@@ -95,7 +95,10 @@ class PartLattices:
     def trunk_anchor(self, V, c, lo, h):
         """The grid anchor (lower corner) of part c: lo, except along the axis where the smaller
         parts overlapping c mostly leave it (by their centres), where a node plane is put at c's
-        end on that side."""
+        end on that side. (The end face's vertices then lie on that plane, so the part's lattice
+        gains a column of cells beyond it that they read with weights of about 1e-15: free nodes
+        held by nothing but their cells' stiffness; moving the plane 1e-4 h outward removes them
+        and changes the drag by at most 0.1 point, by a reviewer's check.)"""
         lo_c, hi_c = self.box[c]
         centre = V[self.comp == c].mean(0)
         votes = np.zeros(3)
@@ -248,12 +251,14 @@ class Model:
         return V + np.einsum("vq,vqc->vc", self.weights, X[self.rows] - rest[self.rows])
 
 
-def cases(character_cells, comb_sizes):
+def cases(character_cells, comb_sizes, turned=0.0):
     """(name, size, V, F, h, {pose name: (groups, T)}, neighbour vertex sets, model size, moved tip
     group, its length). Poses: "roots held", the tests' (the palm's group takes the fingers' roots
     inside the palm); "part held", the palm's (base's) group holds its own part only, so a finger
-    is joined to it by nothing but the lattice (or the glue)."""
-    from conftest import diagonal
+    is joined to it by nothing but the lattice (or the glue). turned: the character turned that
+    many degrees about the vertical (its hands at an angle to the grid; the model size stays the
+    unturned hand's, as in test_junctions.character_sweep)."""
+    from conftest import affine, diagonal, rotation
     from larap import shapes
     from test_junctions import finger_pose, hand_size
     from test_topology import comb, comb_pose
@@ -261,10 +266,15 @@ def cases(character_cells, comb_sizes):
     groups, T = finger_pose(V, parts)
     fingers = np.concatenate(parts["fingers"])
     own = [np.setdiff1d(groups[0], fingers), np.setdiff1d(groups[1], fingers)] + groups[2:]
+    size = hand_size(V, parts)
+    if turned:
+        turn = affine(rotation([0, 0, 1], turned))
+        V = V @ turn[:3, :3].T
+        T = np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
     for cells in character_cells:
         h = larap.Deformer(V, F, cells=cells).cell_size
         yield ("character", f"{cells} cells", V, F, h, {"roots held": (groups, T), "part held": (own, T)},
-               [parts["fingers"][k] for k in (0, 2, 3)], hand_size(V, parts), 3, 0.09)
+               [parts["fingers"][k] for k in (0, 2, 3)], size, 3, 0.09)
     for h in comb_sizes:
         Vc, Fc, tine_ids, _ = comb(gap=0.1 * h)
         gc, Tc = comb_pose(Vc, tine_ids, moved=1)
@@ -282,9 +292,13 @@ def main():
     p.add_argument("--align-trunk", type=float, metavar="W", default=None,
                    help="instead: the glue (first --mu) with the palm's lattice as it is and aligned "
                         "to its end, the held groups weighing 1 and W; drag and the glue's gap")
+    p.add_argument("--turned", type=float, default=0.0,
+                   help="with --align-trunk: the character turned this many degrees about the vertical")
     a = p.parse_args()
     from test_topology import SWEEP_SIZES
     if a.align_trunk is not None:
+        if "--mu" not in sys.argv:  # the default list starts at 0, the no-glue control
+            p.error("--align-trunk needs --mu (its first value is the glue weight, e.g. --mu 1000)")
         return trunk_table(a, SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes)
     print("model | size | pose | nodes: engine / parts (glued) | glue rows | neighbours moved, % of the diagonal: "
           "engine | glued, mu " + " / ".join(f"{m:g}" for m in a.mu) + " | corners shared (no glue) "
@@ -314,7 +328,7 @@ def trunk_table(a, comb_sizes):
     mu, W = a.mu[0], a.align_trunk
     print(f"model | size | pose | neighbours moved / glue gap, % of the diagonal, mu {mu:g}: "
           f"grid, held 1 | grid, held {W:g} | aligned, held 1 | aligned, held {W:g}")
-    for name, size, V, F, h, poses, others, diag, tip, length in cases(a.character_cells, comb_sizes):
+    for name, size, V, F, h, poses, others, diag, tip, length in cases(a.character_cells, comb_sizes, a.turned):
         models = [Model.glued(V, F, h), Model.glued(V, F, h, align_trunk=True)]
         if name == "character":  # the palm's group holding its whole part, its end face too
             groups, T = poses["part held"]

@@ -7,8 +7,8 @@ fingers (docs/method.md, "What splitting cannot separate"). This prints, per lat
 *lever*: how far that shared node plane lies beyond the palm's end, in cells (the palm's end is
 `shapes.character`'s root_x, or the comb's base end at x = -0.1), beside the neighbours' largest
 move on the engine's lattice (the reference flip-flop of glued_parts.Model.engine, which gives the
-engine's trilinear figures), and that move in the first cell past the palm's end and in the last
-cell of the fingers. Then two hinges, the energy's edges weighted by w around the shared
+engine's trilinear figures), and that move within one cell past the palm's end and within the
+fingers' last cell (a band of width h at each end, not a grid cell). Then two hinges, the energy's edges weighted by w around the shared
 nodes, so that a turned finger bends in its own cells instead of pulling them:
 
   "split"  the copies of a split cell (a grid cell with 2 or more copies) that touch a node
@@ -139,7 +139,7 @@ def main():
                     near = (V[o, 0] >= palm_end[name]) & (V[o, 0] <= palm_end[name] + h)
                     far = V[o, 0] >= V[o, 0].max() - h
                     if near.any():  # (the comb's tines have few vertices along x)
-                        where = f" (first cell past the palm's end {move[near].max():.2f}, last {move[far].max():.2f})"
+                        where = f" (within a cell past the palm's end {move[near].max():.2f}, last {move[far].max():.2f})"
                 st.append(stretch(V, X, F, np.flatnonzero(comp == comp[groups[tip][0]])))
             print(f"{name} | {size} | {pose} | {lever:.2f} | {masks[0].sum()} / {masks[1].sum()} | "
                   + f"{drag[0]:.2f}{where} | " + " | ".join(f"{x:.2f}" for x in drag[1:]) + " | "

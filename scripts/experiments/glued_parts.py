@@ -285,7 +285,8 @@ def cases(character_cells, comb_sizes, turned=0.0):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--mu", type=float, nargs="+", default=[0.0, 10.0, 100.0])
+    p.add_argument("--mu", type=float, nargs="+", default=None,
+                   help="glue weights (default 0 10 100; with --align-trunk required, its first value used)")
     p.add_argument("--character-cells", type=int, nargs="*",
                    default=[4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000])
     p.add_argument("--comb-sizes", type=float, nargs="*", default=None)
@@ -297,9 +298,12 @@ def main():
     a = p.parse_args()
     from test_topology import SWEEP_SIZES
     if a.align_trunk is not None:
-        if "--mu" not in sys.argv:  # the default list starts at 0, the no-glue control
+        if a.mu is None:  # the default list starts at 0, the no-glue control
             p.error("--align-trunk needs --mu (its first value is the glue weight, e.g. --mu 1000)")
         return trunk_table(a, SWEEP_SIZES if a.comb_sizes is None else a.comb_sizes)
+    if a.turned:
+        p.error("--turned is for --align-trunk's table")
+    a.mu = [0.0, 10.0, 100.0] if a.mu is None else a.mu
     print("model | size | pose | nodes: engine / parts (glued) | glue rows | neighbours moved, % of the diagonal: "
           "engine | glued, mu " + " / ".join(f"{m:g}" for m in a.mu) + " | corners shared (no glue) "
           "| moved tip's miss, % of its length: glued mu " + " / ".join(f"{m:g}" for m in a.mu))
@@ -326,7 +330,8 @@ def trunk_table(a, comb_sizes):
     The character gets a third pose, "whole part held": the palm's group is its whole part (the
     other poses' palm groups stop 5 mm before the palm's end, where the fingers leave it)."""
     mu, W = a.mu[0], a.align_trunk
-    print(f"model | size | pose | neighbours moved / glue gap, % of the diagonal, mu {mu:g}: "
+    print(f"model | size | pose | neighbours moved / glue gap, % of the diagonal, mu {mu:g}, character "
+          f"turned {a.turned:g} degrees: "
           f"grid, held 1 | grid, held {W:g} | aligned, held 1 | aligned, held {W:g}")
     for name, size, V, F, h, poses, others, diag, tip, length in cases(a.character_cells, comb_sizes, a.turned):
         models = [Model.glued(V, F, h), Model.glued(V, F, h, align_trunk=True)]

@@ -57,6 +57,13 @@ def point_rows(lat, P):
     return ids, w, ok
 
 
+def mesh_parts(V, F):
+    """(number of parts, (V,) the connected component (mesh part) of every vertex)."""
+    n, tris = len(V), triangles(F)
+    A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
+    return cg.connected_components(A + A.T, directed=False)
+
+
 class PartLattices:
     """One lattice per mesh part (connected component) on the model's grid: a larap.Deformer per
     part, its grid origin pinned by a loose vertex at the model's lower corner; nodes numbered
@@ -68,8 +75,7 @@ class PartLattices:
         part that smaller parts overlap (a palm, a comb's base) gets its grid shifted along one
         axis so that a node plane lies at its end where they leave it (trunk_anchor)."""
         n, tris = len(V), triangles(F)
-        A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
-        self.count, comp = cg.connected_components(A + A.T, directed=False)
+        self.count, comp = mesh_parts(V, F)
         self.comp = comp
         self.box = [(V[comp == c].min(0), V[comp == c].max(0)) for c in range(self.count)]
         lo = V.min(0)
@@ -258,9 +264,9 @@ def cases(character_cells, comb_sizes, turned=0.0):
     is joined to it by nothing but the lattice (or the glue). turned: the character turned that
     many degrees about the vertical (its hands at an angle to the grid; the model size stays the
     unturned hand's, as in test_junctions.character_sweep)."""
-    from conftest import affine, diagonal, rotation
+    from conftest import diagonal
     from larap import shapes
-    from test_junctions import finger_pose, hand_size
+    from test_junctions import finger_pose, hand_size, turned_about_vertical
     from test_topology import comb, comb_pose
     V, F, parts = shapes.character()
     groups, T = finger_pose(V, parts)
@@ -268,9 +274,7 @@ def cases(character_cells, comb_sizes, turned=0.0):
     own = [np.setdiff1d(groups[0], fingers), np.setdiff1d(groups[1], fingers)] + groups[2:]
     size = hand_size(V, parts)
     if turned:
-        turn = affine(rotation([0, 0, 1], turned))
-        V = V @ turn[:3, :3].T
-        T = np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
+        V, T = turned_about_vertical(V, T, turned)
     for cells in character_cells:
         h = larap.Deformer(V, F, cells=cells).cell_size
         yield ("character", f"{cells} cells", V, F, h, {"roots held": (groups, T), "part held": (own, T)},
@@ -337,9 +341,7 @@ def trunk_table(a, comb_sizes):
         models = [Model.glued(V, F, h), Model.glued(V, F, h, align_trunk=True)]
         if name == "character":  # the palm's group holding its whole part, its end face too
             groups, T = poses["part held"]
-            n, tris = len(V), triangles(F)
-            A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
-            comp = cg.connected_components(A + A.T, directed=False)[1]
+            comp = mesh_parts(V, F)[1]
             palm = comp[groups[1][np.argmax(V[groups[1], 0])]]
             poses = dict(poses, **{"whole part held": ([groups[0], np.flatnonzero(comp == palm)] + groups[2:], T)})
         for pose, (groups, T) in poses.items():

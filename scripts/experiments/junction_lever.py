@@ -27,17 +27,15 @@ import os
 import sys
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.csgraph as cg
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path[:0] = [os.path.join(REPO, "python"), os.path.join(REPO, "tests", "python"),
                 os.path.dirname(os.path.abspath(__file__))]
 
 import larap  # noqa: E402
+from larap import quality  # noqa: E402
 from arap_variants import Lat, mean_over_copies  # noqa: E402
-from conftest import triangles  # noqa: E402
-from glued_parts import Model, cases  # noqa: E402
+from glued_parts import Model, cases, mesh_parts  # noqa: E402
 
 
 def copies_by_cell(lat):
@@ -63,13 +61,6 @@ def split_hinge(lat):
     return soft
 
 
-def mesh_parts(V, F):
-    """(V,) the connected component (mesh part) of every vertex."""
-    n, tris = len(V), triangles(F)
-    A = sp.coo_matrix((np.ones(3 * len(tris)), (np.repeat(tris[:, 0], 3), tris.ravel())), shape=(n, n))
-    return cg.connected_components(A + A.T, directed=False)[1]
-
-
 def part_hinge(lat, comp):
     """(C,) bool: the one-part copies (by their vertices) touching a node that one-part copies of
     another part touch too."""
@@ -93,15 +84,12 @@ def hinged(lat, edge_w, soft, w):
 
 
 def stretch(V, X, F, ids):
-    """Largest relative change of a triangle edge among the vertices ids, in %."""
-    keep = set(ids.tolist())
-    tris = np.array([t for t in triangles(F) if t[0] in keep])
-    worst = 0.0
-    for a, b in ((0, 1), (1, 2), (0, 2)):
-        e0 = np.linalg.norm(V[tris[:, a]] - V[tris[:, b]], axis=1)
-        e1 = np.linalg.norm(X[tris[:, a]] - X[tris[:, b]], axis=1)
-        worst = max(worst, float(np.max(np.abs(e1 / e0 - 1.0))))
-    return 100 * worst
+    """Largest relative change of an edge of the triangles of the vertices ids, in %."""
+    tris = quality.triangles(F)
+    e = quality.edges(tris[np.isin(tris[:, 0], ids)])
+    l0 = np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)
+    l1 = np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)
+    return 100 * float(np.max(np.abs(l1 / l0 - 1.0)))
 
 
 def main():
@@ -125,7 +113,7 @@ def main():
         x = (palm_end[name] - lat.origin[0]) / h
         lever = np.ceil(x) - x
         edge_w = d.lattice_edge_weights().astype(float)
-        comp = mesh_parts(V, F)
+        comp = mesh_parts(V, F)[1]
         masks = [split_hinge(lat), part_hinge(lat, comp)]
         models = [Model.engine(V, F, h)] + [hinged(lat, edge_w, m, w) for m in masks for w in a.w]
         for pose, (groups, T) in poses.items():

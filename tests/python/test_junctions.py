@@ -30,6 +30,12 @@ def finger_pose(V, parts, moved=1, degrees=60.0):
     return groups, T
 
 
+def turned_about_vertical(V, T, degrees):
+    """The model and its pose (one affine map per group) turned `degrees` about the vertical (z)."""
+    turn = affine(rotation([0, 0, 1], degrees))
+    return V @ turn[:3, :3].T, np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
+
+
 def hand_size(V, parts):
     H = V[parts["hand"]]
     return float(np.linalg.norm(H.max(0) - H.min(0)))
@@ -77,9 +83,7 @@ def character_sweep(palm_part_only=False, turned=0.0):
             groups = [np.setdiff1d(g, fingers) for g in groups[:2]] + groups[2:]
         size = hand_size(V, parts)  # the unturned hand's: the same yardstick at every angle
         if turned:
-            turn = affine(rotation([0, 0, 1], turned))
-            V = V @ turn[:3, :3].T
-            T = np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
+            V, T = turned_about_vertical(V, T, turned)
         drag = []
         for cells in CHARACTER_CELLS:
             worst = 0.0

@@ -1,6 +1,6 @@
 // Disjoint sets (union-find with path halving) whose root is the smallest member: used to join
 // lattice nodes into shared points (lattice.cpp) and mesh vertices into parts
-// (junction_stencils.cpp).
+// (mesh_parts.cpp).
 #pragma once
 #include <algorithm>
 #include <cstdint>

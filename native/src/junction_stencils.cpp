@@ -8,23 +8,11 @@
 #include <map>
 #include <unordered_map>
 
-#include "disjoint_sets.h"
+#include "mesh_parts.h"
 #include "stencil_shell.h"
 
 namespace larap {
 namespace {
-
-// Connected components of the mesh through its faces; a vertex on no face is its own part. A
-// part is named by its smallest vertex id.
-std::vector<int32_t> mesh_parts(const PolygonMesh& mesh) {
-  DisjointSets sets(mesh.num_vertices());
-  for (int64_t f = 0; f < mesh.num_faces(); ++f)
-    for (int64_t k = mesh.face_offsets[f] + 1; k < mesh.face_offsets[f + 1]; ++k)
-      sets.unite(int32_t(mesh.face_indices[mesh.face_offsets[f]]), int32_t(mesh.face_indices[k]));
-  std::vector<int32_t> part(static_cast<size_t>(mesh.num_vertices()));
-  for (int64_t v = 0; v < mesh.num_vertices(); ++v) part[v] = sets.find(int32_t(v));
-  return part;
-}
 
 using Row = std::array<int32_t, 27>;
 

@@ -11,8 +11,8 @@
 // trilinear weights on the same lattice pose).
 //
 // A vertex near a junction reads the junction from its own side. Its side: the cell copies around
-// n that hold vertices of its part (the connected component of the mesh it belongs to; a vertex
-// on no face is a part of its own). An ambiguous item becomes
+// n that hold vertices of its part (mesh_parts.h: the connected component of the mesh it belongs
+// to, through faces and coincident vertices). An ambiguous item becomes
 //   1. the one node at n + d of those copies, or, when they do not reach n + d,
 //   2. the item that a corner of those copies has for the same point without ambiguity (a real
 //      node or a shared shell node of that piece), so that the vertex's stencil agrees with the

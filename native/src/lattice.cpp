@@ -13,6 +13,7 @@
 
 #include "cell_pieces.h"
 #include "disjoint_sets.h"
+#include "mesh_parts.h"
 #include "voxel_grid.h"
 #include "geometry.h"
 #include "stencil_shell.h"
@@ -450,7 +451,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   CellPieces pieces;  // none: the plain lattice
   if (options.split_cells)
     pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
-                              grid.vertex_cells, options.split_resolution);
+                              mesh_parts(mesh), grid.vertex_cells, options.split_resolution);
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
   build_stencil_shell(lat);
   return lat;

@@ -222,6 +222,46 @@ TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
   EXPECT_TRUE(plain.cell_weight.empty() && plain.adj_weight.empty());
 }
 
+// Two slabs of separate mesh parts in one cell, 0.6 x 0.6 x 0.15 and `gap` apart across their
+// faces, turned `degrees` about the x axis through the cell's centre (cell (3,3,3), as above).
+PolygonMesh turned_slabs(double gap, double degrees, double shift = 0.0) {
+  PolygonMesh m = gen::concat({gen::box({1.2, 1.2, 1.5 + shift - 0.5 * gap - 0.15}, {1.8, 1.8, 1.5 + shift - 0.5 * gap}),
+                               gen::box({1.2, 1.2, 1.5 + shift + 0.5 * gap}, {1.8, 1.8, 1.5 + shift + 0.5 * gap + 0.15})});
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  const Eigen::RowVector3d centre(1.5, 1.5, 1.5);
+  for (int64_t v = 0; v < m.vertices.rows(); ++v)
+    m.vertices.row(v) = (m.vertices.row(v) - centre) * R.transpose() + centre;
+  return gen::concat({gen::point({0, 0, 0}), m});
+}
+
+TEST(CellPieces, SeparatePartsAtAnAngleSeparateAtHalfTheGapOfOnePart) {
+  // Surfaces of different parts separate when no voxel, grown by a quarter voxel, meets both:
+  // beyond 1.25 |n|_1 h / k apart (0.071 cells here at k = 24, |n|_1 = 1.37), where surfaces of
+  // one part need 2 |n|_1 h / k (0.114 cells). Fingers a tenth of a cell apart at an angle are
+  // two copies.
+  for (double shift : {0.0, 0.013, 0.027}) {
+    const Lattice lat = build(turned_slabs(0.085, 30.0, shift), 1.0, true);
+    ASSERT_EQ(lat.cell_at(3, 3, 3), 1) << shift;
+    EXPECT_EQ(lat.cell_copies(3, 3, 3), 2) << shift;
+    EXPECT_NE(lat.vertex_cell[1], lat.vertex_cell[9]) << shift;
+  }
+}
+
+TEST(CellPieces, PartsACrackApartOrTouchingStayOneCopy) {
+  // A crack narrower than a quarter voxel between two parts never falls between two voxels,
+  // wherever it lies across a voxel and at any angle; slabs that touch are one piece too.
+  for (double degrees : {0.0, 30.0})
+    for (int j = 0; j < 8; ++j) {
+      const double shift = j / (24.0 * 8.0);  // across one voxel
+      for (double gap : {0.0, 0.004}) {
+        const Lattice lat = build(turned_slabs(gap, degrees, shift), 1.0, true);
+        ASSERT_EQ(lat.cell_at(3, 3, 3), 1);
+        EXPECT_EQ(lat.cell_copies(3, 3, 3), 1) << degrees << " degrees, shift " << shift << ", gap " << gap;
+        EXPECT_EQ(lat.vertex_cell[1], lat.vertex_cell[9]);
+      }
+    }
+}
+
 TEST(CellPieces, UJoinedInsideTheCellIsOneCopy) {
   // The same slabs joined by a wall at their -x end, inside the cell (separate mesh parts that
   // overlap: a soup joint).

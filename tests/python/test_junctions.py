@@ -5,6 +5,8 @@ tenth of a cell apart on the default lattice, a finger turned 60 degrees leaves 
 within 1% of the hand with either weight kind at the default lattice (not yet at every lattice size
 around it: a strict xfail), and the final (B-spline) pose has no step where the fingers leave the
 palm; rest, rigid and affine poses are still reproduced, on both devices."""
+import math
+
 import numpy as np
 import pytest
 from conftest import affine, cpu_and_cuda, need_cuda, rotation
@@ -31,9 +33,21 @@ def finger_pose(V, parts, moved=1, degrees=60.0):
 
 
 def turned_about_vertical(V, T, degrees):
-    """The model and its pose (one affine map per group) turned `degrees` about the vertical (z)."""
-    turn = affine(rotation([0, 0, 1], degrees))
-    return V @ turn[:3, :3].T, np.stack([turn @ t @ np.linalg.inv(turn) for t in T])
+    """The model and its pose (one affine map per group) turned `degrees` about the vertical (z).
+    Only correctly rounded operations (math's sine and cosine, elementwise products and sums, no
+    BLAS), so that every machine turns the model to the same bits: the turned sweeps' lattices
+    depend on them (a last-bit difference moved a 4,000-cell lattice's cell size by 0.5% on the
+    GPU machine, and the figures with it)."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    turned = np.column_stack([c * V[:, 0] - s * V[:, 1], s * V[:, 0] + c * V[:, 1], V[:, 2]])
+    R = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    maps = []
+    for t in np.asarray(T, float):  # R t R^T on the linear part, R applied to the translation
+        A = [[sum(R[i][a] * t[a][b] * R[j][b] for a in range(3) for b in range(3)) for j in range(3)]
+             for i in range(3)]
+        u = [sum(R[i][a] * t[a][3] for a in range(3)) for i in range(3)]
+        maps.append([A[0] + [u[0]], A[1] + [u[1]], A[2] + [u[2]], [0.0, 0.0, 0.0, 1.0]])
+    return turned, np.array(maps)
 
 
 def hand_size(V, parts):
@@ -138,21 +152,23 @@ def turned_sweeps():
 def test_character_at_an_angle_to_the_grid_stays_within_the_measured_bounds():
     """The character turned 15, 30 and 45 degrees about the vertical, so that its hands lie at an
     angle to the lattice (as most characters' hands do), at the same 10 cell counts (the turned
-    model's box is larger, so its cells are 4-7% larger): what the engine does today (2026-11-23:
-    4 of 30 within 1%, median 2.8%, worst 21.1%, at 15 degrees and 4,000 cells; partly fingers a
-    tenth of a cell apart at an angle falling into one piece of a cell, partly the junction's cells
-    reaching farther along the fingers). A guard against getting worse, not the target."""
+    model's box is larger, so its cells are 4-7% larger): what the engine does today (2026-11-23,
+    with separate parts told apart in a cell's voxels: 1 of 30 within 1%, median 3.2%, worst 9.8%;
+    before, fingers a tenth of a cell apart at an angle could fall into one piece of a cell: worst
+    21.6%, 5 sizes over 12%). What is left is the junction's cells reaching farther along the
+    fingers. A guard against getting worse, not the target."""
     for a in TURNED:  # the turn is real: the sweeps differ from the unturned one
         assert not np.allclose(character_sweep(turned=a), character_sweep()), a
     drag = turned_sweeps()
-    assert np.median(drag) <= 3.2, drag
-    assert drag.max() <= 23.0, drag
-    assert (drag <= 1.0).sum() >= 4, drag
+    assert np.median(drag) <= 3.5, drag
+    assert drag.max() <= 10.5, drag
+    assert (drag <= 1.0).sum() >= 1, drag
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met (2026-11-23): with the hand at an "
-                   "angle to the lattice the other fingers move up to 21% of the hand (26 of 30 "
-                   "sizes and angles over 1%); docs/method.md, 'What splitting cannot separate'")
+                   "angle to the lattice the other fingers move up to 9.8% of the hand (29 of 30 "
+                   "sizes and angles over 1%): the cells where the fingers leave the palm reach "
+                   "farther along them; docs/method.md, 'What splitting cannot separate'")
 def test_character_at_an_angle_to_the_grid_meets_the_target():
     assert turned_sweeps().max() <= 1.0, turned_sweeps()
 

@@ -128,9 +128,11 @@ class Deformer:
         parts closer than a cell (fingers, tines) do not share lattice nodes; False keeps the
         plain lattice, where everything in one cell moves together.
     split_resolution: voxels per cell edge used to find the pieces (default 24, 4..64): two
-        surfaces farther apart than 3.5 / split_resolution of a cell (0.15 cell at 24; 2 /
-        split_resolution when they face along an axis) separate wherever the air between them
-        reaches the outside through the analysed cells (docs/method.md).
+        surfaces of one part farther apart than 3.5 / split_resolution of a cell (0.15 cell at
+        24; 2 / split_resolution when they face along an axis) separate wherever the air between
+        them reaches the outside through the analysed cells; surfaces of separate parts (not
+        joined by faces or shared vertex positions) farther apart than 2.2 / split_resolution
+        (0.09 cell at 24; 1.25 / split_resolution along an axis) separate (docs/method.md).
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,

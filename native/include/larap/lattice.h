@@ -46,8 +46,9 @@ struct LatticeOptions {
   int64_t max_bytes = 0;
   // Cell splitting (on by default): each cell is kept once per connected piece of the solid in
   // it, decided on a split_resolution^3 voxel grid inside the cells that may hold several pieces.
-  // Two surfaces farther apart than 2 sqrt(3) h / split_resolution separate (along an axis, beyond
-  // 2 h / split_resolution) where the air between them reaches a seed (docs/method.md).
+  // Two surfaces of one part farther apart than 2 sqrt(3) h / split_resolution separate (along an
+  // axis, beyond 2 h / split_resolution) where the air between them reaches a seed; surfaces of
+  // separate parts beyond 1.25 sqrt(3) h / split_resolution (docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
 };

@@ -8,6 +8,7 @@
 
 #include "geometry.h"
 #include "parallel.h"
+#include "part_pieces.h"
 #include "surface_patches.h"
 
 namespace larap {
@@ -23,120 +24,6 @@ struct TinyUnionFind {
   }
   void unite(int a, int b) { p[find(a)] = find(b); }
 };
-
-// The parts (mesh_parts.h) whose triangles hit each surface voxel of a cell.
-struct PartSets {
-  std::vector<int32_t> offsets;  // k^3 + 1: the parts hitting each voxel (CSR), ascending
-  std::vector<int32_t> parts;
-  bool meet(int64_t a, int64_t b) const {  // the two surface voxels share a part
-    int32_t i = offsets[a], j = offsets[b];
-    while (i < offsets[a + 1] && j < offsets[b + 1]) {
-      if (parts[i] == parts[j]) return true;
-      parts[i] < parts[j] ? ++i : ++j;
-    }
-    return false;
-  }
-};
-
-// Enclosed voxels between two parts that are only a gap (every voxel of the region touches a
-// surface voxel, and the surfaces it touches belong to more than one part): a sliver of space the
-// air flood did not reach between two surfaces about two voxels apart, not material. They become
-// air (v = 2), so that they do not join the parts. A region with a voxel away from every surface
-// (a cavity, the solid around a part inside another) stays material.
-void clear_gaps_between_parts(uint8_t* v, int k, const PartSets& sets, std::vector<int32_t>& parent) {
-  const int64_t k3 = int64_t(k) * k * k;
-  parent.resize(size_t(k3));
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&parent](int32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  const int64_t step[3] = {1, k, int64_t(k) * k};
-  for (int64_t vi = 0; vi < k3; ++vi) {
-    if (v[vi] != 0) continue;
-    const int c[3] = {int(vi % k), int((vi / k) % k), int(vi / (int64_t(k) * k))};
-    for (int axis = 0; axis < 3; ++axis)
-      if (c[axis] + 1 < k && v[vi + step[axis]] == 0) {
-        const int32_t a = find(int32_t(vi)), b = find(int32_t(vi + step[axis]));
-        if (a != b) parent[std::max(a, b)] = std::min(a, b);
-      }
-  }
-  // Per region (by its root): a voxel away from every surface; the one part it touches, or kMany.
-  constexpr int32_t kNone = -1, kMany = -2;
-  std::vector<uint8_t> deep(static_cast<size_t>(k3), 0);
-  std::vector<int32_t> touched(static_cast<size_t>(k3), kNone);
-  for (int64_t vi = 0; vi < k3; ++vi) {
-    if (v[vi] != 0) continue;
-    const int32_t r = find(int32_t(vi));
-    const int c[3] = {int(vi % k), int((vi / k) % k), int(vi / (int64_t(k) * k))};
-    bool near = false;
-    for (int f = 0; f < 6; ++f) {
-      const int axis = f / 2, dir = f % 2 ? 1 : -1;
-      if (c[axis] + dir < 0 || c[axis] + dir >= k) continue;
-      const int64_t ni = vi + dir * step[axis];
-      if (v[ni] != 1) continue;
-      near = true;
-      for (int32_t q = sets.offsets[ni]; q < sets.offsets[ni + 1]; ++q) {
-        int32_t& t = touched[r];
-        if (t == kNone) t = sets.parts[q];
-        else if (t != sets.parts[q]) t = kMany;
-      }
-    }
-    if (!near) deep[r] = 1;
-  }
-  for (int64_t vi = 0; vi < k3; ++vi)
-    if (v[vi] == 0) {
-      const int32_t r = find(int32_t(vi));
-      if (!deep[r] && touched[r] == kMany) v[vi] = 2;
-    }
-}
-
-// A cell's pieces when its triangles belong to several parts. v: the cell's k^3 voxels (0
-// enclosed, 1 surface, 2 air). Enclosed voxels join whatever they touch (a part inside another's
-// solid moves with it); two surface voxels join only when one part hits both. Writes the piece
-// labels (>= 3) into v and the voxels per piece into size; returns the number of pieces.
-int32_t pieces_by_part(uint8_t* v, int k, const PartSets& sets, std::vector<int32_t>& parent,
-                       std::vector<int32_t>& size) {
-  const int64_t k3 = int64_t(k) * k * k;
-  parent.resize(size_t(k3));
-  std::iota(parent.begin(), parent.end(), 0);
-  auto find = [&parent](int32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  const int64_t step[3] = {1, k, int64_t(k) * k};
-  for (int64_t vi = 0; vi < k3; ++vi) {
-    if (v[vi] == 2) continue;
-    const int c[3] = {int(vi % k), int((vi / k) % k), int(vi / (int64_t(k) * k))};
-    for (int axis = 0; axis < 3; ++axis) {
-      if (c[axis] + 1 >= k) continue;
-      const int64_t ni = vi + step[axis];
-      if (v[ni] == 2) continue;
-      if (v[vi] == 0 || v[ni] == 0 || sets.meet(vi, ni)) {
-        const int32_t a = find(int32_t(vi)), b = find(int32_t(ni));
-        if (a != b) parent[std::max(a, b)] = std::min(a, b);  // the root is the smallest voxel
-      }
-    }
-  }
-  for (int64_t vi = 0; vi < k3; ++vi)
-    if (v[vi] != 2) parent[vi] = find(int32_t(vi));
-  // Label in the order of each piece's first voxel (its root), as the flood fill does.
-  int32_t np = 0;
-  for (int64_t vi = 0; vi < k3; ++vi) {
-    if (v[vi] == 2) continue;
-    uint8_t label;
-    if (parent[vi] == vi) {
-      label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
-      ++np;
-      if (size.size() < 253) size.push_back(0);
-    } else {
-      label = v[parent[vi]];  // the root comes first
-    }
-    v[vi] = label;
-    ++size[label - 3];
-  }
-  return np;
-}
 
 }  // namespace
 
@@ -218,7 +105,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   out.voxels = nb * k3;
   std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
   const double hv = h / k;
-  const Eigen::Vector3d vhalf = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 1e-9));
   auto block_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {
     if (!g.contains(c)) return -1;
     const int32_t s = surf_of[g.index(c)];
@@ -234,21 +120,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     uint8_t* v = vox.data() + b * k3;
     for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
       const Eigen::Vector3i& t = tris[cand_tris[q]];
-      const Eigen::Vector3d a = V.row(t[0]), bb = V.row(t[1]), c = V.row(t[2]);
-      const Eigen::Vector3d lo = a.cwiseMin(bb).cwiseMin(c), hi = a.cwiseMax(bb).cwiseMax(c);
-      int v0[3], v1[3];
-      for (int w = 0; w < 3; ++w) {
-        v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - 1e-7)), 0, k - 1);
-        v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + 1e-7)), 0, k - 1);
-      }
-      for (int l = v0[2]; l <= v1[2]; ++l)
-        for (int j = v0[1]; j <= v1[1]; ++j)
-          for (int i = v0[0]; i <= v1[0]; ++i) {
-            uint8_t& cell = v[vindex(i, j, l)];
-            if (cell) continue;
-            const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
-            if (geometry::triangle_box_overlap(centre, vhalf, a, bb, c)) cell = 1;
-          }
+      for_each_voxel_hit(corner, hv, k, V.row(t[0]).transpose(), V.row(t[1]).transpose(), V.row(t[2]).transpose(),
+                         0.0, [v](int64_t vi) { return v[vi] != 0; }, [v](int64_t vi) { v[vi] = 1; });
     }
   }, 4);
 
@@ -304,27 +177,34 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }
 
   // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one
-  // with several tells their surfaces apart (pieces_by_part). part_of[b]: the cell's one part, or
-  // kSeveral.
-  constexpr int32_t kSeveral = -1;
-  std::vector<int32_t> part_of(static_cast<size_t>(nb));
+  // with several tells their surfaces apart (part_pieces.h). part_of[b]: the cell's one part,
+  // kSeveral, or kNoPart (no triangle: no surface voxel).
+  constexpr int32_t kSeveral = -1, kNoPart = -2;
+  std::vector<int32_t> part_of(static_cast<size_t>(nb), kNoPart);
+  bool by_part = false;  // some cell holds several parts, or two cells different ones
+  int32_t seen = kNoPart;
   for (int64_t b = 0; b < nb; ++b) {
-    part_of[b] = cand_offsets[b] < cand_offsets[b + 1] ? vertex_part[tris[cand_tris[cand_offsets[b]]][0]] : 0;
-    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q)
-      if (vertex_part[tris[cand_tris[q]][0]] != part_of[b]) part_of[b] = kSeveral;
+    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
+      const int32_t p = vertex_part[tris[cand_tris[q]][0]];
+      part_of[b] = part_of[b] == kNoPart || part_of[b] == p ? p : kSeveral;
+    }
+    if (part_of[b] == kSeveral) by_part = true;
+    else if (part_of[b] != kNoPart) {
+      if (seen != kNoPart && seen != part_of[b]) by_part = true;
+      seen = part_of[b];
+    }
   }
-  const bool by_part = std::find(part_of.begin(), part_of.end(), kSeveral) != part_of.end() ||
-                       std::adjacent_find(part_of.begin(), part_of.end(), std::not_equal_to<>()) != part_of.end();
-  // What the links across faces need of a face voxel when parts are told apart (by_part): kAir,
-  // kEnclosed, a part (>= 0), or -3 - i for the i-th entry of the cell's face_sets (a voxel hit
-  // by several parts). Face voxel (f, u, w): f * k^2 + w * k + u, as face_voxel names it.
+  // What the links across faces need of a face voxel when parts are told apart (by_part). Face
+  // voxel (f, u, w) is f * k^2 + w * k + u, as face_voxel names it. Cells of one part keep a byte
+  // per face voxel (face_kind: kAirVoxel, kSurfaceVoxel, kEnclosedVoxel); cells of several a key
+  // (face_key: kAir, kEnclosed, a part >= 0, or -3 - i for the i-th of the cell's face_sets, a
+  // voxel hit by several parts).
+  constexpr uint8_t kAirVoxel = 0, kSurfaceVoxel = 1, kEnclosedVoxel = 2;
   constexpr int32_t kAir = -1, kEnclosed = -2;
-  std::vector<std::vector<int32_t>> face_keys(static_cast<size_t>(by_part ? nb : 0));
+  std::vector<std::vector<uint8_t>> face_kind(static_cast<size_t>(by_part ? nb : 0));
+  std::vector<std::vector<int32_t>> face_key(static_cast<size_t>(by_part ? nb : 0));
   std::vector<std::vector<std::vector<int32_t>>> face_sets(static_cast<size_t>(by_part ? nb : 0));
-  // Parts hit a voxel inflated by this much (a fraction of a voxel each side), so that a crack
-  // narrower than a quarter voxel between two parts never falls between two voxels.
-  constexpr double kContact = 0.125;
-  const Eigen::Vector3d vreach = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * kContact));
+  const int64_t k2 = int64_t(k) * k;
 
   // Pieces: 6-connected components of the material voxels of each cell.
   std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
@@ -334,67 +214,39 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     std::vector<int32_t> todo;
     auto& size = sizes[size_t(b)];
     int32_t np = 0;
-    PartSets sets;
-    if (by_part) {
-      // Which parts hit each surface voxel (the voxels the first pass found, tested again per part).
-      const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
-      const Eigen::Vector3d corner = origin + h * X.cast<double>();
-      std::vector<std::pair<int32_t, int32_t>> hits;  // (voxel, part)
-      if (part_of[b] == kSeveral) {
-        std::vector<int32_t> last(static_cast<size_t>(k3), -1);  // the last part found there
-        for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
-          const Eigen::Vector3i& t = tris[cand_tris[q]];
-          const int32_t part = vertex_part[t[0]];
-          const Eigen::Vector3d a = V.row(t[0]), bb = V.row(t[1]), c = V.row(t[2]);
-          const Eigen::Vector3d lo = a.cwiseMin(bb).cwiseMin(c), hi = a.cwiseMax(bb).cwiseMax(c);
-          int v0[3], v1[3];
-          for (int w = 0; w < 3; ++w) {
-            v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - kContact - 1e-7)), 0, k - 1);
-            v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + kContact + 1e-7)), 0, k - 1);
-          }
-          for (int l = v0[2]; l <= v1[2]; ++l)
-            for (int j = v0[1]; j <= v1[1]; ++j)
-              for (int i = v0[0]; i <= v1[0]; ++i) {
-                const int64_t vi = vindex(i, j, l);
-                if (v[vi] != 1 || last[vi] == part) continue;
-                const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
-                if (!geometry::triangle_box_overlap(centre, vreach, a, bb, c)) continue;
-                last[vi] = part;
-                hits.emplace_back(int32_t(vi), part);
-              }
-        }
-        std::sort(hits.begin(), hits.end());
-        hits.erase(std::unique(hits.begin(), hits.end()), hits.end());
-        sets.offsets.assign(size_t(k3 + 1), 0);
-        for (const auto& hp : hits) ++sets.offsets[hp.first + 1];
-        for (int64_t vi = 0; vi < k3; ++vi) sets.offsets[vi + 1] += sets.offsets[vi];
-        sets.parts.resize(hits.size());
-        for (size_t i = 0; i < hits.size(); ++i) sets.parts[i] = hits[i].second;  // hits are sorted
-        std::vector<int32_t> scratch;
-        clear_gaps_between_parts(v, k, sets, scratch);
-      }
-      auto& keys = face_keys[b];
-      keys.resize(size_t(6) * k * k);
+    if (by_part && part_of[b] == kSeveral) {
+      const Eigen::Vector3d corner = origin + h * g.coords(surf_cells[cand_surf[b]]).cast<double>();
+      const PartSets sets = part_sets(v, k, corner, hv, V, tris, cand_tris.data(), cand_offsets[b],
+                                      cand_offsets[b + 1], vertex_part);
+      clear_gaps_between_parts(v, k, sets);
+      auto& keys = face_key[b];
+      keys.resize(size_t(6 * k2));
       for (int f = 0; f < 6; ++f)
         for (int w = 0; w < k; ++w)
           for (int u = 0; u < k; ++u) {
             const int64_t vi = face_voxel(f / 2, f % 2 ? k - 1 : 0, u, w);
-            int32_t& key = keys[size_t(f) * k * k + size_t(w) * k + u];
+            int32_t& key = keys[size_t(f * k2 + w * k + u)];
             if (v[vi] == 2) key = kAir;
             else if (v[vi] == 0) key = kEnclosed;
-            else if (part_of[b] != kSeveral) key = part_of[b];
-            else if (sets.offsets[vi + 1] - sets.offsets[vi] == 1) key = sets.parts[sets.offsets[vi]];
+            else if (sets.end(vi) - sets.begin(vi) == 1) key = *sets.begin(vi);
             else {
               key = -3 - int32_t(face_sets[b].size());
-              face_sets[b].emplace_back(sets.parts.begin() + sets.offsets[vi], sets.parts.begin() + sets.offsets[vi + 1]);
+              face_sets[b].emplace_back(sets.begin(vi), sets.end(vi));
             }
           }
-    }
-    if (by_part && part_of[b] == kSeveral) {
-      std::vector<int32_t> parent;
-      np = pieces_by_part(v, k, sets, parent, size);
+      np = pieces_by_part(v, k, sets, size);
       pieces[b] = std::max(1, std::min(np, 253));
       return;
+    }
+    if (by_part) {
+      auto& kind = face_kind[b];
+      kind.resize(size_t(6 * k2));
+      for (int f = 0; f < 6; ++f)
+        for (int w = 0; w < k; ++w)
+          for (int u = 0; u < k; ++u) {
+            const uint8_t x = v[face_voxel(f / 2, f % 2 ? k - 1 : 0, u, w)];
+            kind[size_t(f * k2 + w * k + u)] = x == 2 ? kAirVoxel : x == 1 ? kSurfaceVoxel : kEnclosedVoxel;
+          }
     }
     for (int64_t start = 0; start < k3; ++start) {
       if (v[start] >= 2) continue;
@@ -427,17 +279,17 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // touching face voxels link their pieces if either is enclosed or one part hits both; a piece
   // links to an unanalysed surface neighbour (one patch, so one part) through an enclosed voxel
   // or that part's surface (to an unanalysed inside cell through any material).
+  auto key_of = [&](int64_t b, int64_t idx) -> int32_t {  // face voxel idx of analysed cell b
+    if (part_of[b] == kSeveral) return face_key[b][size_t(idx)];
+    const uint8_t x = face_kind[b][size_t(idx)];
+    return x == kAirVoxel ? kAir : x == kEnclosedVoxel ? kEnclosed : part_of[b];
+  };
   auto touch = [&](int64_t b, int32_t ka, int64_t yb, int32_t kc) {
     if (ka == kEnclosed || kc == kEnclosed) return true;
-    const int32_t* a0 = ka >= 0 ? &ka : face_sets[b][size_t(-3 - ka)].data();
-    const int32_t* a1 = ka >= 0 ? &ka + 1 : a0 + face_sets[b][size_t(-3 - ka)].size();
-    const int32_t* c0 = kc >= 0 ? &kc : face_sets[yb][size_t(-3 - kc)].data();
-    const int32_t* c1 = kc >= 0 ? &kc + 1 : c0 + face_sets[yb][size_t(-3 - kc)].size();
-    while (a0 < a1 && c0 < c1) {
-      if (*a0 == *c0) return true;
-      *a0 < *c0 ? ++a0 : ++c0;
-    }
-    return false;
+    const std::vector<int32_t>* sa = ka >= 0 ? nullptr : &face_sets[b][size_t(-3 - ka)];
+    const std::vector<int32_t>* sc = kc >= 0 ? nullptr : &face_sets[yb][size_t(-3 - kc)];
+    return sorted_sets_meet(sa ? sa->data() : &ka, sa ? sa->data() + sa->size() : &ka + 1,
+                            sc ? sc->data() : &kc, sc ? sc->data() + sc->size() : &kc + 1);
   };
   std::unordered_map<int32_t, int32_t> plain_part;  // unanalysed surface neighbour -> its part
   if (by_part) {
@@ -480,8 +332,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)], c = w[face_voxel(axis, 0, u, q)];
             if (a < 3 || c < 3) continue;
-            if (by_part && !touch(b, face_keys[b][size_t(f) * k * k + size_t(q) * k + u], yb,
-                                  face_keys[yb][size_t(f - 1) * k * k + size_t(q) * k + u]))
+            if (by_part && !touch(b, key_of(b, f * k2 + q * k + u), yb, key_of(yb, (f - 1) * k2 + q * k + u)))
               continue;
             pairs.emplace_back(a - 3, c - 3);
           }
@@ -496,8 +347,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)];
             if (a < 3) continue;
-            if (known != plain_part.end() &&
-                !touch(b, face_keys[b][size_t(f) * k * k + size_t(q) * k + u], b, known->second))
+            if (known != plain_part.end() && !touch(b, key_of(b, f * k2 + q * k + u), b, known->second))
               continue;
             has[a - 3] = 1;
           }

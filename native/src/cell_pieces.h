@@ -18,18 +18,18 @@
 // 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
 //    analysed cells connect when material voxels touch across the face; a piece connects to a
 //    non-analysed kept neighbour when it has material on the shared face.
-// 4. Parts (mesh_parts.h). In a cell whose triangles belong to several parts, two touching surface
-//    voxels join only when one part's triangles meet both (tested on the voxel grown by an eighth of a
-//    voxel to each side, so that a crack under a quarter voxel never falls between voxels);
-//    enclosed voxels join whatever they touch, except a thin region (every voxel next to a
-//    surface) touching several parts, which is a gap, not material, and becomes air. The same rule
+// 4. Parts (mesh_parts.h). In a cell whose triangles belong to several parts (part_pieces.h), two
+//    touching surface voxels join only when one part's triangles meet both (tested on the voxel
+//    grown by an eighth of a voxel to each side, so that a crack under a quarter voxel never falls
+//    between voxels); enclosed voxels join whatever they touch, except a thin region whose surface
+//    voxels have no part in common, which is a gap, not material, and becomes air. The same rule
 //    decides links across faces (to an unanalysed surface neighbour: its one part's surface).
 // Two surfaces of one part facing along an axis more than 2 h / k apart always have a voxel of air
 // between them, so they separate (if the air between them reaches a seed); at an angle to the axes
 // they must be farther apart, up to 2 sqrt(3) h / k (docs/method.md); closer ones may merge.
 // Surfaces of different parts more than 1.25 |n|_1 h / k apart (at most 2.17 h / k; |n|_1 as in
 // docs/method.md) separate, unless the space between them is closed off from the air and holds a
-// voxel next to no surface.
+// voxel next to no surface and off the cell's border (measured, not proven: docs/method.md).
 #pragma once
 #include <larap/mesh.h>
 

@@ -222,11 +222,12 @@ TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
   EXPECT_TRUE(plain.cell_weight.empty() && plain.adj_weight.empty());
 }
 
-// Two slabs of separate mesh parts in one cell, 0.6 x 0.6 x 0.15 and `gap` apart across their
-// faces, turned `degrees` about the x axis through the cell's centre (cell (3,3,3), as above).
+// Two slabs of separate mesh parts in one cell, 0.6 x 0.6 and 0.5 x 0.5 wide (so that no corners
+// coincide, which would make them one part), 0.15 thick and `gap` apart across their faces, turned
+// `degrees` about the x axis through the cell's centre (cell (3,3,3), as above).
 PolygonMesh turned_slabs(double gap, double degrees, double shift = 0.0) {
   PolygonMesh m = gen::concat({gen::box({1.2, 1.2, 1.5 + shift - 0.5 * gap - 0.15}, {1.8, 1.8, 1.5 + shift - 0.5 * gap}),
-                               gen::box({1.2, 1.2, 1.5 + shift + 0.5 * gap}, {1.8, 1.8, 1.5 + shift + 0.5 * gap + 0.15})});
+                               gen::box({1.25, 1.25, 1.5 + shift + 0.5 * gap}, {1.75, 1.75, 1.5 + shift + 0.5 * gap + 0.15})});
   const Eigen::Matrix3d R = Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
   const Eigen::RowVector3d centre(1.5, 1.5, 1.5);
   for (int64_t v = 0; v < m.vertices.rows(); ++v)
@@ -248,18 +249,38 @@ TEST(CellPieces, SeparatePartsAtAnAngleSeparateAtHalfTheGapOfOnePart) {
 }
 
 TEST(CellPieces, PartsACrackApartOrTouchingStayOneCopy) {
-  // A crack narrower than a quarter voxel between two parts never falls between two voxels,
-  // wherever it lies across a voxel and at any angle; slabs that touch are one piece too.
-  for (double degrees : {0.0, 30.0})
+  // A crack narrower than a quarter voxel (0.0104 cells) between two parts never falls between
+  // two voxels, wherever it lies across a voxel and at any angle; slabs that touch are one piece.
+  for (double degrees : {0.0, 30.0, 45.0})
     for (int j = 0; j < 8; ++j) {
       const double shift = j / (24.0 * 8.0);  // across one voxel
-      for (double gap : {0.0, 0.004}) {
+      for (double gap : {0.0, 0.004, 0.0099}) {
         const Lattice lat = build(turned_slabs(gap, degrees, shift), 1.0, true);
         ASSERT_EQ(lat.cell_at(3, 3, 3), 1);
         EXPECT_EQ(lat.cell_copies(3, 3, 3), 1) << degrees << " degrees, shift " << shift << ", gap " << gap;
         EXPECT_EQ(lat.vertex_cell[1], lat.vertex_cell[9]);
       }
     }
+}
+
+TEST(CellPieces, AThinPlateLyingOnABodyKeepsItsInside) {
+  // A plate of its own part, 0.08 or 0.12 cells thick (2-3 voxels) and wider than the cells, a
+  // crack above a body: the body's surface is within a grown voxel of the plate's underside, yet
+  // the plate's thin inside touches only voxels its own part hits, so it stays material and the
+  // plate is one piece in cell (3, 3, 5): two loose vertices inside it, near its underside and near
+  // its top, bind to one copy (a gap between parts is cleared only when its surface voxels have
+  // no part in common).
+  for (double gap : {0.01, 0.03})
+    for (double thick : {0.08, 0.12})
+      for (int j = 0; j < 4; ++j) {
+        const double bottom = 3.5 + gap + j / 96.0, top = bottom + thick;
+        const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::point({1.5, 1.5, bottom + 0.2 * thick}),
+                                           gen::point({1.5, 1.5, top - 0.2 * thick}),
+                                           gen::box({0.5, 0.5, 0.5}, {4.5, 4.5, 3.5}),
+                                           gen::box({0.5, 0.5, bottom}, {4.5, 4.5, top})});
+        const Lattice lat = build(m, 1.0, true);
+        EXPECT_EQ(lat.vertex_cell[1], lat.vertex_cell[2]) << gap << " " << thick << " " << j;
+      }
 }
 
 TEST(CellPieces, UJoinedInsideTheCellIsOneCopy) {

@@ -34,10 +34,11 @@ def finger_pose(V, parts, moved=1, degrees=60.0):
 
 def turned_about_vertical(V, T, degrees):
     """The model and its pose (one affine map per group) turned `degrees` about the vertical (z).
-    Only correctly rounded operations (math's sine and cosine, elementwise products and sums, no
-    BLAS), so that every machine turns the model to the same bits: the turned sweeps' lattices
-    depend on them (a last-bit difference moved a 4,000-cell lattice's cell size by 0.5% on the
-    GPU machine, and the figures with it)."""
+    Elementwise products and sums and the C library's sine and cosine, no BLAS (whose kernels
+    differ between CPUs in the last bit), so that machines with the same libm turn the model to
+    the same bits: the turned sweeps' lattices depend on them (a last-bit difference moved a
+    4,000-cell lattice's cell size by 0.5% between this machine and the GPU machine, and the
+    figures with it)."""
     c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
     turned = np.column_stack([c * V[:, 0] - s * V[:, 1], s * V[:, 0] + c * V[:, 1], V[:, 2]])
     R = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]

@@ -1,0 +1,144 @@
+#include "part_pieces.h"
+
+#include "disjoint_sets.h"
+
+namespace larap {
+namespace {
+
+// Calls visit(vi, c) for every voxel of a k^3 grid, c its coordinates (vi = c0 + k (c1 + k c2)),
+// without divisions.
+template <class F>
+void for_each_voxel(int k, F&& visit) {
+  int64_t vi = 0;
+  for (int l = 0; l < k; ++l)
+    for (int j = 0; j < k; ++j)
+      for (int i = 0; i < k; ++i, ++vi) {
+        const int c[3] = {i, j, l};
+        visit(vi, c);
+      }
+}
+
+// The 6-neighbour of voxel vi (coordinates c) across face f (2 * axis + (1: +axis)), or -1
+// outside the cell.
+inline int64_t neighbour(int64_t vi, const int* c, int f, int k) {
+  const int axis = f / 2;
+  const int64_t step = axis == 0 ? 1 : axis == 1 ? k : int64_t(k) * k;
+  if (f % 2) return c[axis] + 1 < k ? vi + step : -1;
+  return c[axis] > 0 ? vi - step : -1;
+}
+
+}  // namespace
+
+PartSets part_sets(const uint8_t* v, int k, const Eigen::Vector3d& corner, double hv, const RowMatrixX3d& V,
+                   const std::vector<Eigen::Vector3i>& tris, const int32_t* ids, int32_t q0, int32_t q1,
+                   const std::vector<int32_t>& vertex_part) {
+  const int64_t k3 = int64_t(k) * k * k;
+  std::vector<std::pair<int32_t, int32_t>> hits;  // (voxel, part)
+  std::vector<int32_t> last(static_cast<size_t>(k3), -1);  // the part last found there (saves tests)
+  for (int32_t q = q0; q < q1; ++q) {
+    const Eigen::Vector3i& t = tris[ids[q]];
+    const int32_t part = vertex_part[t[0]];
+    for_each_voxel_hit(corner, hv, k, V.row(t[0]).transpose(), V.row(t[1]).transpose(), V.row(t[2]).transpose(),
+                       kContact, [&](int64_t vi) { return v[vi] != 1 || last[vi] == part; },
+                       [&](int64_t vi) {
+                         last[vi] = part;
+                         hits.emplace_back(int32_t(vi), part);
+                       });
+  }
+  std::sort(hits.begin(), hits.end());
+  hits.erase(std::unique(hits.begin(), hits.end()), hits.end());
+  PartSets sets;
+  sets.offsets.assign(size_t(k3 + 1), 0);
+  for (const auto& hp : hits) ++sets.offsets[hp.first + 1];
+  for (int64_t vi = 0; vi < k3; ++vi) sets.offsets[vi + 1] += sets.offsets[vi];
+  sets.parts.resize(hits.size());
+  for (size_t i = 0; i < hits.size(); ++i) sets.parts[i] = hits[i].second;  // sorted by voxel, then part
+  return sets;
+}
+
+void clear_gaps_between_parts(uint8_t* v, int k, const PartSets& sets) {
+  const int64_t k3 = int64_t(k) * k * k;
+  DisjointSets regions(k3);  // the enclosed regions, each named by its smallest voxel
+  bool any = false;
+  for_each_voxel(k, [&](int64_t vi, const int* c) {
+    if (v[vi] != 0) return;
+    any = true;
+    for (int f = 1; f < 6; f += 2) {
+      const int64_t ni = neighbour(vi, c, f, k);
+      if (ni >= 0 && v[ni] == 0) regions.unite(int32_t(vi), int32_t(ni));
+    }
+  });
+  if (!any) return;
+  // Per region (slot[root]): a voxel away from every surface and from the border; whether it
+  // touches a surface voxel; the parts common to every surface voxel it touches.
+  std::vector<int32_t> slot(static_cast<size_t>(k3), -1);
+  std::vector<uint8_t> deep, touches;
+  std::vector<std::vector<int32_t>> common;
+  for_each_voxel(k, [&](int64_t vi, const int* c) {
+    if (v[vi] != 0) return;
+    const int32_t root = regions.find(int32_t(vi));
+    if (slot[root] < 0) {
+      slot[root] = int32_t(deep.size());
+      deep.push_back(0);
+      touches.push_back(0);
+      common.emplace_back();
+    }
+    const int32_t r = slot[root];
+    bool near = false;
+    for (int f = 0; f < 6; ++f) {
+      const int64_t ni = neighbour(vi, c, f, k);
+      if (ni < 0) {
+        near = true;  // what lies across the border is not known here
+        continue;
+      }
+      if (v[ni] != 1) continue;
+      near = true;
+      std::vector<int32_t>& c = common[r];
+      if (!touches[r]) {
+        touches[r] = 1;
+        c.assign(sets.begin(ni), sets.end(ni));
+      } else if (!c.empty()) {
+        c.erase(std::remove_if(c.begin(), c.end(),
+                               [&](int32_t p) { return !std::binary_search(sets.begin(ni), sets.end(ni), p); }),
+                c.end());
+      }
+    }
+    if (!near) deep[r] = 1;
+  });
+  for (int64_t vi = 0; vi < k3; ++vi)
+    if (v[vi] == 0) {
+      const int32_t r = slot[regions.find(int32_t(vi))];
+      if (!deep[r] && touches[r] && common[r].empty()) v[vi] = 2;
+    }
+}
+
+int32_t pieces_by_part(uint8_t* v, int k, const PartSets& sets, std::vector<int32_t>& size) {
+  const int64_t k3 = int64_t(k) * k * k;
+  DisjointSets pieces(k3);  // the root of a piece is its smallest voxel
+  for_each_voxel(k, [&](int64_t vi, const int* c) {
+    if (v[vi] == 2) return;
+    for (int f = 1; f < 6; f += 2) {
+      const int64_t ni = neighbour(vi, c, f, k);
+      if (ni < 0 || v[ni] == 2) continue;
+      if (v[vi] == 0 || v[ni] == 0 || sets.meet(vi, ni)) pieces.unite(int32_t(vi), int32_t(ni));
+    }
+  });
+  int32_t np = 0;
+  for (int64_t vi = 0; vi < k3; ++vi) {
+    if (v[vi] == 2) continue;
+    const int32_t root = pieces.find(int32_t(vi));
+    uint8_t label;
+    if (root == vi) {
+      label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
+      ++np;
+      if (size.size() < 253) size.push_back(0);
+    } else {
+      label = v[root];  // the root, the smallest voxel, is labelled first
+    }
+    v[vi] = label;
+    ++size[label - 3];
+  }
+  return np;
+}
+
+}  // namespace larap

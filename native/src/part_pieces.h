@@ -1,0 +1,83 @@
+// The pieces of one analysed cell whose triangles belong to several parts (mesh_parts.h), for
+// cell splitting (cell_pieces.h, step 4). Internal to the lattice builder.
+//
+// On the cell's k^3 voxels (0 enclosed, 1 surface, 2 air, as cell_pieces.cpp finds them):
+// - which parts hit each surface voxel, the voxel's box grown by kContact of a voxel to every side,
+//   so that a crack under a quarter voxel between two parts never falls between two voxels;
+// - two touching surface voxels join only when one part hits both; enclosed voxels join whatever
+//   they touch (a part inside another's solid moves with it);
+// - except a gap: an enclosed region that is thin (each voxel next to a surface voxel, or on the
+//   cell's border) and whose surface voxels have no part in common, a sliver of space the air flood
+//   did not reach between two parts, becomes air. The inside of a thin part lying on another keeps
+//   a part common to all its surface voxels (its own), so it stays material.
+#pragma once
+#include <larap/mesh.h>
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "geometry.h"
+
+namespace larap {
+
+constexpr double kContact = 0.125;  // growth of a voxel's box for the parts' hits, in voxels
+
+// Whether two ascending lists share an entry.
+inline bool sorted_sets_meet(const int32_t* a, const int32_t* a_end, const int32_t* b, const int32_t* b_end) {
+  while (a < a_end && b < b_end) {
+    if (*a == *b) return true;
+    *a < *b ? ++a : ++b;
+  }
+  return false;
+}
+
+// Calls hit(vi) for each voxel vi of a cell's k^3 grid (corner: the cell's lowest corner, hv: the
+// voxel size; vi = i + k (j + k l)) whose box, grown by `grow` voxels to every side, the triangle
+// abc overlaps; skip(vi) true leaves a voxel untested.
+template <class Skip, class Hit>
+void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a,
+                        const Eigen::Vector3d& b, const Eigen::Vector3d& c, double grow, Skip&& skip, Hit&& hit) {
+  const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * grow + 1e-9));
+  int v0[3], v1[3];
+  for (int w = 0; w < 3; ++w) {
+    v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - grow - 1e-7)), 0, k - 1);
+    v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + grow + 1e-7)), 0, k - 1);
+  }
+  for (int l = v0[2]; l <= v1[2]; ++l)
+    for (int j = v0[1]; j <= v1[1]; ++j)
+      for (int i = v0[0]; i <= v1[0]; ++i) {
+        const int64_t vi = i + int64_t(k) * (j + int64_t(k) * l);
+        if (skip(vi)) continue;
+        const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
+        if (geometry::triangle_box_overlap(centre, half, a, b, c)) hit(vi);
+      }
+}
+
+// The parts hitting each surface voxel of a cell (CSR over its k^3 voxels, each list ascending).
+struct PartSets {
+  std::vector<int32_t> offsets;  // k^3 + 1
+  std::vector<int32_t> parts;
+  const int32_t* begin(int64_t vi) const { return parts.data() + offsets[vi]; }
+  const int32_t* end(int64_t vi) const { return parts.data() + offsets[vi + 1]; }
+  bool meet(int64_t a, int64_t b) const { return sorted_sets_meet(begin(a), end(a), begin(b), end(b)); }
+};
+
+// The parts hitting the surface voxels (v == 1) of the cell at `corner`, from its triangles
+// tris[ids[q]], q in [q0, q1).
+PartSets part_sets(const uint8_t* v, int k, const Eigen::Vector3d& corner, double hv, const RowMatrixX3d& V,
+                   const std::vector<Eigen::Vector3i>& tris, const int32_t* ids, int32_t q0, int32_t q1,
+                   const std::vector<int32_t>& vertex_part);
+
+// Turns the gaps between parts (above) into air.
+void clear_gaps_between_parts(uint8_t* v, int k, const PartSets& sets);
+
+// The cell's pieces under the rules above: writes the piece labels (>= 3, in the order of each
+// piece's first voxel, as the flood fill of a one-part cell) into v and the voxels per piece into
+// size (at most 253 pieces: the rest merge into the last); returns the number of pieces found.
+int32_t pieces_by_part(uint8_t* v, int k, const PartSets& sets, std::vector<int32_t>& size);
+
+}  // namespace larap

@@ -16,8 +16,8 @@ sys.path[:0] = [HERE, os.path.join(REPO, "python"), os.path.join(REPO, "tests", 
 import larap  # noqa: E402
 from arap_variants import (Lat, Solver, group_alpha, group_targets, transfer, material_masks,  # noqa: E402
                            cell_weights, boxes_inside, split_copy_weights, mean_over_copies)
-from conftest import diagonal, rotation, triangles, volume  # noqa: E402
-from conftest import affine, apply  # noqa: E402
+from conftest import affine, apply, rotation  # noqa: E402
+from larap.quality import diagonal, triangles, volume  # noqa: E402
 from test_topology import comb, comb_pose, bars, bend_first_pin_second  # noqa: E402
 from test_deformer import bend_setup  # noqa: E402
 from larap import shapes  # noqa: E402

@@ -68,7 +68,7 @@ def quality_rows(gammas):
 
 
 def comb_rows(gammas, gap=0.1):
-    from conftest import diagonal
+    from larap.quality import diagonal
     from test_topology import SWEEP_SIZES, comb, comb_pose
     print(f"2. comb, 17 cell sizes (gap {gap} cell): drag median / worst / within 1 %, held base's drift (max)")
     for g in gammas:

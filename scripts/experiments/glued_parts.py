@@ -39,7 +39,7 @@ sys.path[:0] = [os.path.join(REPO, "python"), os.path.join(REPO, "tests", "pytho
 
 import larap  # noqa: E402
 from arap_variants import Lat, best_rotations, winding_inside  # noqa: E402
-from conftest import triangles  # noqa: E402
+from larap.quality import triangles  # noqa: E402
 
 
 def point_rows(lat, P):
@@ -264,7 +264,7 @@ def cases(character_cells, comb_sizes, turned=0.0):
     is joined to it by nothing but the lattice (or the glue). turned: the character turned that
     many degrees about the vertical (its hands at an angle to the grid; the model size stays the
     unturned hand's, as in test_junctions.character_sweep)."""
-    from conftest import diagonal
+    from larap.quality import diagonal
     from larap import shapes
     from test_junctions import finger_pose, hand_size, turned_about_vertical
     from test_topology import comb, comb_pose

@@ -42,19 +42,6 @@ def cpu_and_cuda():
     return ["cpu", pytest.param("cuda", marks=need_cuda())]
 
 
-def diagonal(V):
-    return float(np.linalg.norm(V.max(0) - V.min(0)))
-
-
-def triangles(F):
-    return np.array([[f[0], f[k], f[k + 1]] for f in F for k in range(1, len(f) - 1)])
-
-
-def volume(X, tris):
-    a, b, c = X[tris[:, 0]], X[tris[:, 1]], X[tris[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
-
-
 @pytest.fixture
 def shared_meshes():
     if not os.path.isdir(SHARED_MESHES):

@@ -2,10 +2,11 @@
 """Properties of the CPU engine: rest pose, rigid motions, energy, volume, separate parts."""
 import numpy as np
 import pytest
-from conftest import diagonal, rotation, tol, triangles, volume
+from conftest import rotation, tol
 
 import larap
 from larap import shapes
+from larap.quality import diagonal, triangles, volume
 
 WEIGHTS = ["trilinear", "bspline"]
 

@@ -3,10 +3,11 @@
 weights as a soft falloff, a warm start per lattice component; on every available device."""
 import numpy as np
 import pytest
-from conftest import affine, apply, diagonal, rotation
+from conftest import affine, apply, rotation
 
 import larap
 from larap import shapes
+from larap.quality import diagonal
 
 
 def tol(device, cpu, cuda):

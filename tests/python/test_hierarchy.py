@@ -2,10 +2,11 @@
 """The lattice hierarchy (levels > 1): 2x2x2 cells joined per level, solved coarse to fine."""
 import numpy as np
 import pytest
-from conftest import diagonal, rotation, tol
+from conftest import rotation, tol
 
 import larap
 from larap import shapes
+from larap.quality import diagonal
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,10 @@ import os
 
 import numpy as np
 import pytest
-from conftest import diagonal
 
 import larap
 from larap import shapes
+from larap.quality import diagonal
 
 
 def cell_centres(d):

@@ -7,10 +7,11 @@ import os
 
 import numpy as np
 import pytest
-from conftest import affine, apply, cpu_and_cuda, diagonal, rotation
+from conftest import affine, apply, cpu_and_cuda, rotation
 
 import larap
 from larap import shapes
+from larap.quality import diagonal
 
 H = 1.0  # cell size of the generated models
 

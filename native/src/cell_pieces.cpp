@@ -218,7 +218,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       const Eigen::Vector3d corner = origin + h * g.coords(surf_cells[cand_surf[b]]).cast<double>();
       const PartSets sets = part_sets(v, k, corner, hv, V, tris, cand_tris.data(), cand_offsets[b],
                                       cand_offsets[b + 1], vertex_part);
-      clear_gaps_between_parts(v, k, sets);
       auto& keys = face_key[b];
       keys.resize(size_t(6 * k2));
       for (int f = 0; f < 6; ++f)
@@ -291,9 +290,28 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     return sorted_sets_meet(sa ? sa->data() : &ka, sa ? sa->data() + sa->size() : &ka + 1,
                             sc ? sc->data() : &kc, sc ? sc->data() + sc->size() : &kc + 1);
   };
+  // Two surface voxels across a face also join when a part of one is within the grown voxel of
+  // the other: a triangle of the other cell, of a part in `parts`, overlaps voxel vi of cell
+  // `corner` grown by kContact (a crack under a quarter voxel that lies on a cell face).
+  auto reaches = [&](const int32_t* ids, int32_t q0, int32_t q1, const int32_t* p0, const int32_t* p1,
+                     const Eigen::Vector3d& corner, int64_t vi) {
+    for (int32_t q = q0; q < q1; ++q) {
+      const Eigen::Vector3i& t = tris[ids[q]];
+      if (!std::binary_search(p0, p1, vertex_part[t[0]])) continue;
+      if (triangle_hits_voxel(corner, hv, k, vi, V.row(t[0]).transpose(), V.row(t[1]).transpose(),
+                              V.row(t[2]).transpose(), kContact))
+        return true;
+    }
+    return false;
+  };
+  auto parts_of = [&](int64_t b, const int32_t& key) -> std::pair<const int32_t*, const int32_t*> {
+    if (key >= 0) return {&key, &key + 1};
+    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - key)];
+    return {set.data(), set.data() + set.size()};
+  };
+  std::vector<int32_t> plain, plain_offsets, plain_ids;  // unanalysed surface neighbours, their triangles
   std::unordered_map<int32_t, int32_t> plain_part;  // unanalysed surface neighbour -> its part
   if (by_part) {
-    std::vector<int32_t> plain;
     for (int64_t b = 0; b < nb; ++b) {
       const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
       for (int f = 0; f < 6; ++f) {
@@ -304,15 +322,15 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
     std::sort(plain.begin(), plain.end());
     plain.erase(std::unique(plain.begin(), plain.end()), plain.end());
-    std::vector<int32_t> offsets, ids;
-    triangles_of(sp, tris, plain, offsets, ids);
+    triangles_of(sp, tris, plain, plain_offsets, plain_ids);
     for (size_t i = 0; i < plain.size(); ++i)
-      if (offsets[i] < offsets[i + 1]) plain_part[plain[i]] = vertex_part[tris[ids[offsets[i]]][0]];
+      if (plain_offsets[i] < plain_offsets[i + 1]) plain_part[plain[i]] = vertex_part[tris[plain_ids[plain_offsets[i]]][0]];
   }
   std::vector<std::vector<PieceLink>> links(static_cast<size_t>(nb));
   parallel_for(nb, [&](int64_t b) {
     const int64_t xid = surf_cells[cand_surf[b]];
     const Eigen::Vector3i X = g.coords(xid);
+    const Eigen::Vector3d x_corner = origin + h * X.cast<double>();
     const uint8_t* v = vox.data() + b * k3;
     auto& mine = links[b];
     for (int f = 0; f < 6; ++f) {
@@ -332,8 +350,19 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)], c = w[face_voxel(axis, 0, u, q)];
             if (a < 3 || c < 3) continue;
-            if (by_part && !touch(b, key_of(b, f * k2 + q * k + u), yb, key_of(yb, (f - 1) * k2 + q * k + u)))
-              continue;
+            if (by_part) {
+              const int32_t ka = key_of(b, f * k2 + q * k + u), kc = key_of(yb, (f - 1) * k2 + q * k + u);
+              if (!touch(b, ka, yb, kc)) {
+                const auto [a0, a1] = parts_of(b, ka);
+                const auto [c0, c1] = parts_of(yb, kc);
+                const Eigen::Vector3d y_corner = origin + h * Y.cast<double>();
+                if (!reaches(cand_tris.data(), cand_offsets[yb], cand_offsets[yb + 1], c0, c1, x_corner,
+                             face_voxel(axis, layer, u, q)) &&
+                    !reaches(cand_tris.data(), cand_offsets[b], cand_offsets[b + 1], a0, a1, y_corner,
+                             face_voxel(axis, 0, u, q)))
+                  continue;
+              }
+            }
             pairs.emplace_back(a - 3, c - 3);
           }
         std::sort(pairs.begin(), pairs.end());
@@ -347,8 +376,16 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)];
             if (a < 3) continue;
-            if (known != plain_part.end() && !touch(b, key_of(b, f * k2 + q * k + u), b, known->second))
-              continue;
+            if (known != plain_part.end()) {
+              const int32_t ka = key_of(b, f * k2 + q * k + u);
+              if (!touch(b, ka, b, known->second)) {
+                const size_t i = size_t(std::lower_bound(plain.begin(), plain.end(), ys) - plain.begin());
+                const int32_t part = known->second;
+                if (!reaches(plain_ids.data(), plain_offsets[i], plain_offsets[i + 1], &part, &part + 1, x_corner,
+                             face_voxel(axis, layer, u, q)))
+                  continue;
+              }
+            }
             has[a - 3] = 1;
           }
         for (int32_t p = 0; p < pieces[b]; ++p)

@@ -21,15 +21,15 @@
 // 4. Parts (mesh_parts.h). In a cell whose triangles belong to several parts (part_pieces.h), two
 //    touching surface voxels join only when one part's triangles meet both (tested on the voxel
 //    grown by an eighth of a voxel to each side, so that a crack under a quarter voxel never falls
-//    between voxels); enclosed voxels join whatever they touch, except a thin region whose surface
-//    voxels have no part in common, which is a gap, not material, and becomes air. The same rule
-//    decides links across faces (to an unanalysed surface neighbour: its one part's surface).
+//    between voxels); enclosed voxels join whatever they touch. The same rule decides links across
+//    faces, with the other cell's triangles also tested against the grown voxel (a crack on a cell
+//    face); to an unanalysed surface neighbour (one patch, so one part) through its part.
 // Two surfaces of one part facing along an axis more than 2 h / k apart always have a voxel of air
 // between them, so they separate (if the air between them reaches a seed); at an angle to the axes
 // they must be farther apart, up to 2 sqrt(3) h / k (docs/method.md); closer ones may merge.
-// Surfaces of different parts more than 1.25 |n|_1 h / k apart (at most 2.17 h / k; |n|_1 as in
-// docs/method.md) separate, unless the space between them is closed off from the air and holds a
-// voxel next to no surface and off the cell's border (measured, not proven: docs/method.md).
+// Surfaces of different parts more than 1.25 |n|_1 h / k apart (|n|_1 as in docs/method.md) with
+// no voxel between them separate; a pocket of enclosed space between them joins them, as for one
+// part (measured: none beyond 1.55 |n|_1 h / k; docs/method.md).
 #pragma once
 #include <larap/mesh.h>
 

@@ -56,62 +56,6 @@ PartSets part_sets(const uint8_t* v, int k, const Eigen::Vector3d& corner, doubl
   return sets;
 }
 
-void clear_gaps_between_parts(uint8_t* v, int k, const PartSets& sets) {
-  const int64_t k3 = int64_t(k) * k * k;
-  DisjointSets regions(k3);  // the enclosed regions, each named by its smallest voxel
-  bool any = false;
-  for_each_voxel(k, [&](int64_t vi, const int* c) {
-    if (v[vi] != 0) return;
-    any = true;
-    for (int f = 1; f < 6; f += 2) {
-      const int64_t ni = neighbour(vi, c, f, k);
-      if (ni >= 0 && v[ni] == 0) regions.unite(int32_t(vi), int32_t(ni));
-    }
-  });
-  if (!any) return;
-  // Per region (slot[root]): a voxel away from every surface and from the border; whether it
-  // touches a surface voxel; the parts common to every surface voxel it touches.
-  std::vector<int32_t> slot(static_cast<size_t>(k3), -1);
-  std::vector<uint8_t> deep, touches;
-  std::vector<std::vector<int32_t>> common;
-  for_each_voxel(k, [&](int64_t vi, const int* c) {
-    if (v[vi] != 0) return;
-    const int32_t root = regions.find(int32_t(vi));
-    if (slot[root] < 0) {
-      slot[root] = int32_t(deep.size());
-      deep.push_back(0);
-      touches.push_back(0);
-      common.emplace_back();
-    }
-    const int32_t r = slot[root];
-    bool near = false;
-    for (int f = 0; f < 6; ++f) {
-      const int64_t ni = neighbour(vi, c, f, k);
-      if (ni < 0) {
-        near = true;  // what lies across the border is not known here
-        continue;
-      }
-      if (v[ni] != 1) continue;
-      near = true;
-      std::vector<int32_t>& c = common[r];
-      if (!touches[r]) {
-        touches[r] = 1;
-        c.assign(sets.begin(ni), sets.end(ni));
-      } else if (!c.empty()) {
-        c.erase(std::remove_if(c.begin(), c.end(),
-                               [&](int32_t p) { return !std::binary_search(sets.begin(ni), sets.end(ni), p); }),
-                c.end());
-      }
-    }
-    if (!near) deep[r] = 1;
-  });
-  for (int64_t vi = 0; vi < k3; ++vi)
-    if (v[vi] == 0) {
-      const int32_t r = slot[regions.find(int32_t(vi))];
-      if (!deep[r] && touches[r] && common[r].empty()) v[vi] = 2;
-    }
-}
-
 int32_t pieces_by_part(uint8_t* v, int k, const PartSets& sets, std::vector<int32_t>& size) {
   const int64_t k3 = int64_t(k) * k * k;
   DisjointSets pieces(k3);  // the root of a piece is its smallest voxel

@@ -5,11 +5,9 @@
 // - which parts hit each surface voxel, the voxel's box grown by kContact of a voxel to every side,
 //   so that a crack under a quarter voxel between two parts never falls between two voxels;
 // - two touching surface voxels join only when one part hits both; enclosed voxels join whatever
-//   they touch (a part inside another's solid moves with it);
-// - except a gap: an enclosed region that is thin (each voxel next to a surface voxel, or on the
-//   cell's border) and whose surface voxels have no part in common, a sliver of space the air flood
-//   did not reach between two parts, becomes air. The inside of a thin part lying on another keeps
-//   a part common to all its surface voxels (its own), so it stays material.
+//   they touch (a part inside another's solid moves with it, and so does a pocket of space the air
+//   flood did not reach: telling it from the inside of a thin part would need the triangles'
+//   orientation, which soups and flipped meshes do not give).
 #pragma once
 #include <larap/mesh.h>
 
@@ -57,6 +55,17 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
       }
 }
 
+// Whether the triangle abc overlaps voxel vi of a cell's k^3 grid (as for_each_voxel_hit), its box
+// grown by `grow` voxels to every side.
+inline bool triangle_hits_voxel(const Eigen::Vector3d& corner, double hv, int k, int64_t vi,
+                                const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                                double grow) {
+  const Eigen::Vector3d centre =
+      corner + hv * Eigen::Vector3d(double(vi % k) + 0.5, double((vi / k) % k) + 0.5, double(vi / (int64_t(k) * k)) + 0.5);
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * grow + 1e-9));
+  return geometry::triangle_box_overlap(centre, half, a, b, c);
+}
+
 // The parts hitting each surface voxel of a cell (CSR over its k^3 voxels, each list ascending).
 struct PartSets {
   std::vector<int32_t> offsets;  // k^3 + 1
@@ -71,9 +80,6 @@ struct PartSets {
 PartSets part_sets(const uint8_t* v, int k, const Eigen::Vector3d& corner, double hv, const RowMatrixX3d& V,
                    const std::vector<Eigen::Vector3i>& tris, const int32_t* ids, int32_t q0, int32_t q1,
                    const std::vector<int32_t>& vertex_part);
-
-// Turns the gaps between parts (above) into air.
-void clear_gaps_between_parts(uint8_t* v, int k, const PartSets& sets);
 
 // The cell's pieces under the rules above: writes the piece labels (>= 3, in the order of each
 // piece's first voxel, as the flood fill of a one-part cell) into v and the voxels per piece into

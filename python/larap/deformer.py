@@ -131,8 +131,9 @@ class Deformer:
         surfaces of one part farther apart than 3.5 / split_resolution of a cell (0.15 cell at
         24; 2 / split_resolution when they face along an axis) separate wherever the air between
         them reaches the outside through the analysed cells; surfaces of separate parts (not
-        joined by faces or shared vertex positions) farther apart than 2.2 / split_resolution
-        (0.09 cell at 24; 1.25 / split_resolution along an axis) separate (docs/method.md).
+        joined by faces or shared vertex positions) separate closer: measured from 1.25 /
+        split_resolution along an axis to about 2.7 / split_resolution at the worst angle (0.05
+        to 0.11 cell at 24; docs/method.md).
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,

@@ -235,11 +235,11 @@ PolygonMesh turned_slabs(double gap, double degrees, double shift = 0.0) {
   return gen::concat({gen::point({0, 0, 0}), m});
 }
 
-TEST(CellPieces, SeparatePartsAtAnAngleSeparateAtHalfTheGapOfOnePart) {
-  // Surfaces of different parts separate when no voxel, grown by a quarter voxel, meets both:
-  // beyond 1.25 |n|_1 h / k apart (0.071 cells here at k = 24, |n|_1 = 1.37), where surfaces of
-  // one part need 2 |n|_1 h / k (0.114 cells). Fingers a tenth of a cell apart at an angle are
-  // two copies.
+TEST(CellPieces, SeparatePartsAtAnAngleSeparateCloserThanOnePart) {
+  // Surfaces of different parts separate when no voxel, grown by an eighth of a voxel to every
+  // side, meets both and no enclosed voxel lies between them: here 0.085 cells apart (1.5 |n|_1 h /
+  // k at k = 24, |n|_1 = 1.37), where surfaces of one part may merge up to 2 |n|_1 h / k (0.114
+  // cells). Fingers a tenth of a cell apart at an angle are two copies.
   for (double shift : {0.0, 0.013, 0.027}) {
     const Lattice lat = build(turned_slabs(0.085, 30.0, shift), 1.0, true);
     ASSERT_EQ(lat.cell_at(3, 3, 3), 1) << shift;
@@ -263,24 +263,44 @@ TEST(CellPieces, PartsACrackApartOrTouchingStayOneCopy) {
     }
 }
 
+TEST(CellPieces, PartsACrackApartOnACellFaceStayJoined) {
+  // The crack lies on the cell face z = 3, so each side's triangles are in one cell only: the
+  // link across the face looks for the other cell's triangles in the grown voxel. A small box in
+  // each cell makes both cells analysed (two patches each).
+  const std::pair<double, double> cracks[] = {{1e-6, 1e-6}, {0.002, 0.001}, {0.001, 0.004}, {0.005, 0.005}};
+  for (const auto& [below, above] : cracks) {
+    {
+      const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({1.2, 1.2, 2.5}, {1.6, 1.6, 3.0 - below}),
+                                         gen::box({1.25, 1.25, 3.0 + above}, {1.65, 1.65, 3.5}),
+                                         gen::box({1.8, 1.8, 2.2}, {1.9, 1.9, 2.3}),
+                                         gen::box({1.8, 1.8, 3.7}, {1.9, 1.9, 3.8})});
+      const Lattice lat = build(m, 1.0, true);
+      ASSERT_EQ(lat.cell_copies(3, 3, 4), 2);
+      // The loose vertex's cell, the two slabs joined, the two small boxes.
+      EXPECT_EQ(lat.num_components, 4) << below << " " << above;
+    }
+  }
+}
+
 TEST(CellPieces, AThinPlateLyingOnABodyKeepsItsInside) {
   // A plate of its own part, 0.08 or 0.12 cells thick (2-3 voxels) and wider than the cells, a
-  // crack above a body: the body's surface is within a grown voxel of the plate's underside, yet
-  // the plate's thin inside touches only voxels its own part hits, so it stays material and the
-  // plate is one piece in cell (3, 3, 5): two loose vertices inside it, near its underside and near
-  // its top, bind to one copy (a gap between parts is cleared only when its surface voxels have
-  // no part in common).
+  // crack above a body, with or without a rod of a third part pushed half into it: the plate's
+  // thin inside stays material and the plate one piece in cell (3, 3, 5): two loose vertices
+  // inside it, near its underside and near its top, bind to one copy. (A rule that turned thin
+  // enclosed space between parts into air split such plates into top and bottom.)
   for (double gap : {0.01, 0.03})
     for (double thick : {0.08, 0.12})
-      for (int j = 0; j < 4; ++j) {
-        const double bottom = 3.5 + gap + j / 96.0, top = bottom + thick;
-        const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::point({1.5, 1.5, bottom + 0.2 * thick}),
-                                           gen::point({1.5, 1.5, top - 0.2 * thick}),
-                                           gen::box({0.5, 0.5, 0.5}, {4.5, 4.5, 3.5}),
-                                           gen::box({0.5, 0.5, bottom}, {4.5, 4.5, top})});
-        const Lattice lat = build(m, 1.0, true);
-        EXPECT_EQ(lat.vertex_cell[1], lat.vertex_cell[2]) << gap << " " << thick << " " << j;
-      }
+      for (bool rod : {false, true})
+        for (int j = 0; j < 4; ++j) {
+          const double bottom = 3.5 + gap + j / 96.0, top = bottom + thick;
+          PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::point({1.5, 1.5, bottom + 0.2 * thick}),
+                                       gen::point({1.5, 1.5, top - 0.2 * thick}),
+                                       gen::box({0.5, 0.5, 0.5}, {4.5, 4.5, 3.5}),
+                                       gen::box({0.5, 0.5, bottom}, {4.5, 4.5, top})});
+          if (rod) m = gen::concat({m, gen::box({1.7, 1.7, bottom + 0.5 * thick}, {1.9, 1.9, 4.4})});
+          const Lattice lat = build(m, 1.0, true);
+          EXPECT_EQ(lat.vertex_cell[1], lat.vertex_cell[2]) << gap << " " << thick << " " << rod << " " << j;
+        }
 }
 
 TEST(CellPieces, UJoinedInsideTheCellIsOneCopy) {

@@ -48,7 +48,7 @@ struct LatticeOptions {
   // it, decided on a split_resolution^3 voxel grid inside the cells that may hold several pieces.
   // Two surfaces of one part farther apart than 2 sqrt(3) h / split_resolution separate (along an
   // axis, beyond 2 h / split_resolution) where the air between them reaches a seed; surfaces of
-  // separate parts beyond 1.25 sqrt(3) h / split_resolution (docs/method.md).
+  // separate parts closer (measured: beyond 1.55 sqrt(3) h / split_resolution; docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
 };

@@ -290,23 +290,47 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     return sorted_sets_meet(sa ? sa->data() : &ka, sa ? sa->data() + sa->size() : &ka + 1,
                             sc ? sc->data() : &kc, sc ? sc->data() + sc->size() : &kc + 1);
   };
-  // Two surface voxels across a face also join when a part of one is within the grown voxel of
-  // the other: a triangle of the other cell, of a part in `parts`, overlaps voxel vi of cell
-  // `corner` grown by kContact (a crack under a quarter voxel that lies on a cell face).
-  auto reaches = [&](const int32_t* ids, int32_t q0, int32_t q1, const int32_t* p0, const int32_t* p1,
-                     const Eigen::Vector3d& corner, int64_t vi) {
+  // Two surface voxels across a face also join when a part of one is within the other's grown
+  // voxel (a crack under a quarter voxel that lies on a cell face, whose two sides are in two
+  // cells). face_reach: the parts of the other cell's triangles ids[q0, q1) that overlap a voxel of
+  // the face layer `layer` (0 or k - 1) along `axis` of the cell at `corner`, the voxel grown by
+  // kContact, as sorted (face voxel q * k + u, part); only triangles within the growth of the face
+  // plane are rasterised (a few of the cell's), and only when a pair of face voxels needs it.
+  using Reach = std::vector<std::pair<int32_t, int32_t>>;
+  auto face_reach = [&](const int32_t* ids, int32_t q0, int32_t q1, const Eigen::Vector3d& corner, int axis,
+                        int layer) {
+    Reach out;
+    const double plane = corner[axis] + (layer ? h : 0.0), margin = (kContact + 1e-6) * hv;
+    const int64_t step = axis == 0 ? 1 : axis == 1 ? k : k2;
     for (int32_t q = q0; q < q1; ++q) {
       const Eigen::Vector3i& t = tris[ids[q]];
-      if (!std::binary_search(p0, p1, vertex_part[t[0]])) continue;
-      if (triangle_hits_voxel(corner, hv, k, vi, V.row(t[0]).transpose(), V.row(t[1]).transpose(),
-                              V.row(t[2]).transpose(), kContact))
-        return true;
+      const Eigen::Vector3d a = V.row(t[0]), bb = V.row(t[1]), c = V.row(t[2]);
+      if (std::min({a[axis], bb[axis], c[axis]}) > plane + margin ||
+          std::max({a[axis], bb[axis], c[axis]}) < plane - margin)
+        continue;
+      const int32_t part = vertex_part[t[0]];
+      for_each_voxel_hit(corner, hv, k, a, bb, c, kContact, [&](int64_t vi) { return (vi / step) % k != layer; },
+                         [&](int64_t vi) {
+                           const int cc[3] = {int(vi % k), int((vi / k) % k), int(vi / k2)};
+                           out.emplace_back(int32_t(cc[(axis + 2) % 3] * k + cc[(axis + 1) % 3]), part);
+                         });
     }
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+  };
+  // Whether a part reaching face voxel idx is in [p0, p1).
+  auto reach_meets = [](const Reach& r, int32_t idx, const int32_t* p0, const int32_t* p1) {
+    for (auto it = std::lower_bound(r.begin(), r.end(), std::make_pair(idx, std::numeric_limits<int32_t>::min()));
+         it != r.end() && it->first == idx; ++it)
+      if (std::binary_search(p0, p1, it->second)) return true;
     return false;
   };
-  auto parts_of = [&](int64_t b, const int32_t& key) -> std::pair<const int32_t*, const int32_t*> {
-    if (key >= 0) return {&key, &key + 1};
-    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - key)];
+  // The parts of a surface voxel's key as a range: *key itself when it names one part (so the
+  // range lives as long as the caller's key), else the cell's face set.
+  auto parts_of = [&](int64_t b, const int32_t* key) -> std::pair<const int32_t*, const int32_t*> {
+    if (*key >= 0) return {key, key + 1};
+    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - *key)];
     return {set.data(), set.data() + set.size()};
   };
   std::vector<int32_t> plain, plain_offsets, plain_ids;  // unanalysed surface neighbours, their triangles
@@ -346,21 +370,25 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
         if (!side) continue;  // the pair is listed once, from its lower cell
         const uint8_t* w = vox.data() + yb * k3;
         std::vector<std::pair<int32_t, int32_t>> pairs;
+        Reach into_x, into_y;  // Y's triangles reaching X's face voxels, X's reaching Y's
+        bool reached = false;
         for (int q = 0; q < k; ++q)
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)], c = w[face_voxel(axis, 0, u, q)];
             if (a < 3 || c < 3) continue;
             if (by_part) {
-              const int32_t ka = key_of(b, f * k2 + q * k + u), kc = key_of(yb, (f - 1) * k2 + q * k + u);
+              const int32_t idx = q * k + u;
+              const int32_t ka = key_of(b, f * k2 + idx), kc = key_of(yb, (f - 1) * k2 + idx);
               if (!touch(b, ka, yb, kc)) {
-                const auto [a0, a1] = parts_of(b, ka);
-                const auto [c0, c1] = parts_of(yb, kc);
-                const Eigen::Vector3d y_corner = origin + h * Y.cast<double>();
-                if (!reaches(cand_tris.data(), cand_offsets[yb], cand_offsets[yb + 1], c0, c1, x_corner,
-                             face_voxel(axis, layer, u, q)) &&
-                    !reaches(cand_tris.data(), cand_offsets[b], cand_offsets[b + 1], a0, a1, y_corner,
-                             face_voxel(axis, 0, u, q)))
-                  continue;
+                if (!reached) {
+                  reached = true;
+                  into_x = face_reach(cand_tris.data(), cand_offsets[yb], cand_offsets[yb + 1], x_corner, axis, k - 1);
+                  into_y = face_reach(cand_tris.data(), cand_offsets[b], cand_offsets[b + 1],
+                                      origin + h * Y.cast<double>(), axis, 0);
+                }
+                const auto [a0, a1] = parts_of(b, &ka);
+                const auto [c0, c1] = parts_of(yb, &kc);
+                if (!reach_meets(into_x, idx, c0, c1) && !reach_meets(into_y, idx, a0, a1)) continue;
               }
             }
             pairs.emplace_back(a - 3, c - 3);
@@ -372,6 +400,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
         std::vector<uint8_t> has(static_cast<size_t>(pieces[b]), 0);
         const int32_t ys = surf_of[yid];
         const auto known = ys >= 0 && by_part ? plain_part.find(ys) : plain_part.end();
+        Reach into_x;  // the neighbour's triangles reaching X's face voxels
+        bool reached = false;
         for (int q = 0; q < k; ++q)
           for (int u = 0; u < k; ++u) {
             const uint8_t a = v[face_voxel(axis, layer, u, q)];
@@ -379,11 +409,13 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
             if (known != plain_part.end()) {
               const int32_t ka = key_of(b, f * k2 + q * k + u);
               if (!touch(b, ka, b, known->second)) {
-                const size_t i = size_t(std::lower_bound(plain.begin(), plain.end(), ys) - plain.begin());
+                if (!reached) {
+                  reached = true;
+                  const size_t i = size_t(std::lower_bound(plain.begin(), plain.end(), ys) - plain.begin());
+                  into_x = face_reach(plain_ids.data(), plain_offsets[i], plain_offsets[i + 1], x_corner, axis, layer);
+                }
                 const int32_t part = known->second;
-                if (!reaches(plain_ids.data(), plain_offsets[i], plain_offsets[i + 1], &part, &part + 1, x_corner,
-                             face_voxel(axis, layer, u, q)))
-                  continue;
+                if (!reach_meets(into_x, q * k + u, &part, &part + 1)) continue;
               }
             }
             has[a - 3] = 1;

@@ -205,6 +205,11 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   std::vector<std::vector<int32_t>> face_key(static_cast<size_t>(by_part ? nb : 0));
   std::vector<std::vector<std::vector<int32_t>>> face_sets(static_cast<size_t>(by_part ? nb : 0));
   const int64_t k2 = int64_t(k) * k;
+  auto for_face_voxels = [&](auto&& visit) {  // visit(face voxel index f * k^2 + w * k + u, voxel)
+    for (int f = 0; f < 6; ++f)
+      for (int w = 0; w < k; ++w)
+        for (int u = 0; u < k; ++u) visit(f * k2 + w * k + u, face_voxel(f / 2, f % 2 ? k - 1 : 0, u, w));
+  };
 
   // Pieces: 6-connected components of the material voxels of each cell.
   std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
@@ -220,19 +225,16 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                                       cand_offsets[b + 1], vertex_part);
       auto& keys = face_key[b];
       keys.resize(size_t(6 * k2));
-      for (int f = 0; f < 6; ++f)
-        for (int w = 0; w < k; ++w)
-          for (int u = 0; u < k; ++u) {
-            const int64_t vi = face_voxel(f / 2, f % 2 ? k - 1 : 0, u, w);
-            int32_t& key = keys[size_t(f * k2 + w * k + u)];
-            if (v[vi] == 2) key = kAir;
-            else if (v[vi] == 0) key = kEnclosed;
-            else if (sets.end(vi) - sets.begin(vi) == 1) key = *sets.begin(vi);
-            else {
-              key = -3 - int32_t(face_sets[b].size());
-              face_sets[b].emplace_back(sets.begin(vi), sets.end(vi));
-            }
-          }
+      for_face_voxels([&](int64_t idx, int64_t vi) {
+        int32_t& key = keys[size_t(idx)];
+        if (v[vi] == 2) key = kAir;
+        else if (v[vi] == 0) key = kEnclosed;
+        else if (sets.end(vi) - sets.begin(vi) == 1) key = *sets.begin(vi);
+        else {
+          key = -3 - int32_t(face_sets[b].size());
+          face_sets[b].emplace_back(sets.begin(vi), sets.end(vi));
+        }
+      });
       np = pieces_by_part(v, k, sets, size);
       pieces[b] = std::max(1, std::min(np, 253));
       return;
@@ -240,12 +242,9 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     if (by_part) {
       auto& kind = face_kind[b];
       kind.resize(size_t(6 * k2));
-      for (int f = 0; f < 6; ++f)
-        for (int w = 0; w < k; ++w)
-          for (int u = 0; u < k; ++u) {
-            const uint8_t x = v[face_voxel(f / 2, f % 2 ? k - 1 : 0, u, w)];
-            kind[size_t(f * k2 + w * k + u)] = x == 2 ? kAirVoxel : x == 1 ? kSurfaceVoxel : kEnclosedVoxel;
-          }
+      for_face_voxels([&](int64_t idx, int64_t vi) {
+        kind[size_t(idx)] = v[vi] == 2 ? kAirVoxel : v[vi] == 1 ? kSurfaceVoxel : kEnclosedVoxel;
+      });
     }
     for (int64_t start = 0; start < k3; ++start) {
       if (v[start] >= 2) continue;
@@ -283,12 +282,18 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     const uint8_t x = face_kind[b][size_t(idx)];
     return x == kAirVoxel ? kAir : x == kEnclosedVoxel ? kEnclosed : part_of[b];
   };
-  auto touch = [&](int64_t b, int32_t ka, int64_t yb, int32_t kc) {
+  // The parts of a surface voxel's key as a range: *key itself when it names one part (so the
+  // range lives as long as the caller's key), else the cell's face set.
+  auto parts_of = [&](int64_t b, const int32_t* key) -> std::pair<const int32_t*, const int32_t*> {
+    if (*key >= 0) return {key, key + 1};
+    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - *key)];
+    return {set.data(), set.data() + set.size()};
+  };
+  auto touch = [&](int64_t b, int32_t ka, int64_t yb, int32_t kc) {  // enclosed, or a part in common
     if (ka == kEnclosed || kc == kEnclosed) return true;
-    const std::vector<int32_t>* sa = ka >= 0 ? nullptr : &face_sets[b][size_t(-3 - ka)];
-    const std::vector<int32_t>* sc = kc >= 0 ? nullptr : &face_sets[yb][size_t(-3 - kc)];
-    return sorted_sets_meet(sa ? sa->data() : &ka, sa ? sa->data() + sa->size() : &ka + 1,
-                            sc ? sc->data() : &kc, sc ? sc->data() + sc->size() : &kc + 1);
+    const auto [a0, a1] = parts_of(b, &ka);
+    const auto [c0, c1] = parts_of(yb, &kc);
+    return sorted_sets_meet(a0, a1, c0, c1);
   };
   // Two surface voxels across a face also join when a part of one is within the other's grown
   // voxel (a crack under a quarter voxel that lies on a cell face, whose two sides are in two
@@ -325,13 +330,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
          it != r.end() && it->first == idx; ++it)
       if (std::binary_search(p0, p1, it->second)) return true;
     return false;
-  };
-  // The parts of a surface voxel's key as a range: *key itself when it names one part (so the
-  // range lives as long as the caller's key), else the cell's face set.
-  auto parts_of = [&](int64_t b, const int32_t* key) -> std::pair<const int32_t*, const int32_t*> {
-    if (*key >= 0) return {key, key + 1};
-    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - *key)];
-    return {set.data(), set.data() + set.size()};
   };
   std::vector<int32_t> plain, plain_offsets, plain_ids;  // unanalysed surface neighbours, their triangles
   std::unordered_map<int32_t, int32_t> plain_part;  // unanalysed surface neighbour -> its part

@@ -18,13 +18,10 @@ void for_each_voxel(int k, F&& visit) {
       }
 }
 
-// The 6-neighbour of voxel vi (coordinates c) across face f (2 * axis + (1: +axis)), or -1
-// outside the cell.
-inline int64_t neighbour(int64_t vi, const int* c, int f, int k) {
-  const int axis = f / 2;
+// The neighbour of voxel vi (coordinates c) one step along +axis, or -1 outside the cell.
+inline int64_t next_along(int64_t vi, const int* c, int axis, int k) {
   const int64_t step = axis == 0 ? 1 : axis == 1 ? k : int64_t(k) * k;
-  if (f % 2) return c[axis] + 1 < k ? vi + step : -1;
-  return c[axis] > 0 ? vi - step : -1;
+  return c[axis] + 1 < k ? vi + step : -1;
 }
 
 }  // namespace
@@ -61,8 +58,8 @@ int32_t pieces_by_part(uint8_t* v, int k, const PartSets& sets, std::vector<int3
   DisjointSets pieces(k3);  // the root of a piece is its smallest voxel
   for_each_voxel(k, [&](int64_t vi, const int* c) {
     if (v[vi] == 2) return;
-    for (int f = 1; f < 6; f += 2) {
-      const int64_t ni = neighbour(vi, c, f, k);
+    for (int axis = 0; axis < 3; ++axis) {
+      const int64_t ni = next_along(vi, c, axis, k);
       if (ni < 0 || v[ni] == 2) continue;
       if (v[vi] == 0 || v[ni] == 0 || sets.meet(vi, ni)) pieces.unite(int32_t(vi), int32_t(ni));
     }

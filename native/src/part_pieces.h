@@ -55,17 +55,6 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
       }
 }
 
-// Whether the triangle abc overlaps voxel vi of a cell's k^3 grid (as for_each_voxel_hit), its box
-// grown by `grow` voxels to every side.
-inline bool triangle_hits_voxel(const Eigen::Vector3d& corner, double hv, int k, int64_t vi,
-                                const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
-                                double grow) {
-  const Eigen::Vector3d centre =
-      corner + hv * Eigen::Vector3d(double(vi % k) + 0.5, double((vi / k) % k) + 0.5, double(vi / (int64_t(k) * k)) + 0.5);
-  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * grow + 1e-9));
-  return geometry::triangle_box_overlap(centre, half, a, b, c);
-}
-
 // The parts hitting each surface voxel of a cell (CSR over its k^3 voxels, each list ascending).
 struct PartSets {
   std::vector<int32_t> offsets;  // k^3 + 1

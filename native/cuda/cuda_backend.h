@@ -156,6 +156,8 @@ class CudaBackend final : public Backend {
   cuda::System sys_;
   cuda::DeviceBuffer<float4> rest_, x_, p_, r_[2], w_[2], s_[2], xtmp_, disp_, h_;
   cuda::DeviceBuffer<double> hd_, q_, m_val_, e_q_, e_P_, maps_, mom_partial_, mom_out_;
+  cuda::DeviceBuffer<double> mh_val_;
+  cuda::DeviceBuffer<int> mh_off_, mh_col_;
   cuda::DeviceBuffer<int> comp_, m_off_, m_col_, e_off_, e_group_, mc_nodes_, mc_chunk_off_, mc_comp_off_;
   cuda::DeviceBuffer<float> motions_;
   cuda::PinnedBuffer<double> h_moments_;

@@ -28,7 +28,7 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   const auto trip = arap_triplets(lat_, hs);
   SpR A(n, n);
   A.setFromTriplets(trip.begin(), trip.end());
-  SpR M = handle_matrix(hs, n);  // B^T diag(alpha) B
+  SpR M = coupling_matrix(hs, n);  // B^T diag(alpha) B + the glue of carried parts
   M.makeCompressed();
   A = SpR(A + M);
   A.makeCompressed();
@@ -83,6 +83,19 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   sys_.m_off = m_off_.upload(M.outerIndexPtr(), size_t(n) + 1, stream_);
   sys_.m_col = m_col_.upload(M.innerIndexPtr(), size_t(M.nonZeros()), stream_);
   sys_.m_val = m_val_.upload(M.valuePtr(), size_t(M.nonZeros()), stream_);
+  if (hs.glue.empty()) {  // the warm start's moments read M without the glue
+    moment_chunks_.m_off = sys_.m_off;
+    moment_chunks_.m_col = sys_.m_col;
+    moment_chunks_.m_val = sys_.m_val;
+  } else {
+    SpR Mh = handle_matrix(hs, n);
+    Mh.makeCompressed();
+    moment_chunks_.m_off = mh_off_.upload(Mh.outerIndexPtr(), size_t(n) + 1, stream_);
+    moment_chunks_.m_col = mh_col_.upload(Mh.innerIndexPtr(), size_t(Mh.nonZeros()), stream_);
+    moment_chunks_.m_val = mh_val_.upload(Mh.valuePtr(), size_t(Mh.nonZeros()), stream_);
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // `Mh` may go
+  }
+  comp_.upload(hs.node_component.data(), size_t(n_all_), stream_);  // carried parts: the carrier's
   sys_.q = q_.upload(hs.q.data(), hs.q.size(), stream_);
   entries_.node_off = e_off_.upload(hs.node_offsets.data(), hs.node_offsets.size(), stream_);
   entries_.group = e_group_.upload(hs.entry_group.data(), hs.entry_group.size(), stream_);
@@ -123,12 +136,12 @@ void CudaBackend::upload_moment_chunks(const HandleSystem& hs) {
   const int nc = std::max(hs.num_components, 0);
   std::vector<int> count(size_t(nc) + 1, 0);
   for (int i = 0; i < n_; ++i)
-    if (hs.q[size_t(i)] > 0.0) ++count[size_t(lat_.component[size_t(i)]) + 1];
+    if (hs.q[size_t(i)] > 0.0) ++count[size_t(hs.node_component[size_t(i)]) + 1];
   for (int c = 0; c < nc; ++c) count[size_t(c) + 1] += count[size_t(c)];
   mc_nodes_host_.assign(size_t(count[size_t(nc)]), 0);
   std::vector<int> fill(count.begin(), count.end() - 1);
   for (int i = 0; i < n_; ++i)
-    if (hs.q[size_t(i)] > 0.0) mc_nodes_host_[size_t(fill[size_t(lat_.component[size_t(i)])]++)] = i;
+    if (hs.q[size_t(i)] > 0.0) mc_nodes_host_[size_t(fill[size_t(hs.node_component[size_t(i)])]++)] = i;
   mc_chunk_off_host_.assign(1, 0);
   mc_comp_off_host_.assign(1, 0);
   for (int c = 0; c < nc; ++c) {

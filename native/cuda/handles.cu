@@ -42,9 +42,9 @@ __global__ void __launch_bounds__(kBlock)
     const float4 ci = pos[i];
     const double c[3] = {ci.x, ci.y, ci.z};
     double mc3[3] = {0.0, 0.0, 0.0};  // (M c)_i
-    for (int q = __ldg(s.m_off + i); q < __ldg(s.m_off + i + 1); ++q) {
-      const double w = __ldg(s.m_val + q);
-      const float4 cj = pos[__ldg(s.m_col + q)];
+    for (int q = __ldg(mc.m_off + i); q < __ldg(mc.m_off + i + 1); ++q) {
+      const double w = __ldg(mc.m_val + q);
+      const float4 cj = pos[__ldg(mc.m_col + q)];
       mc3[0] += w * double(cj.x);
       mc3[1] += w * double(cj.y);
       mc3[2] += w * double(cj.z);

@@ -43,10 +43,15 @@ struct MomentChunks {
   const int* nodes = nullptr;
   int components = 0;
   const int* comp_chunk_off = nullptr;  // components + 1, into the chunks
+  // M = B^T diag(alpha) B alone, CSR in double: s.m_* when nothing is carried, else without the
+  // glue that s.m_* also holds (handle_system.h).
+  const int* m_off = nullptr;
+  const int* m_col = nullptr;
+  const double* m_val = nullptr;
 };
 
 // out[kMomentValues c + k] for every component c, of the pose `pos` (s.x or s.rest) against the
-// current H (s.hd) with M (s.m_*); partial: kMomentValues * chunks scratch.
+// current H (s.hd) with M (mc.m_*); partial: kMomentValues * chunks scratch.
 void launch_moments(const System& s, const float4* pos, const MomentChunks& mc, double* partial, double* out,
                     cudaStream_t st);
 

@@ -78,7 +78,8 @@ class CpuBackend final : public Backend {
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     M_ = handle_matrix(hs, n);
-    A += M_;
+    C_ = coupling_matrix(hs, n);  // M and the glue of carried parts
+    A += C_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();
     llt_->compute(A);
@@ -108,7 +109,7 @@ class CpuBackend final : public Backend {
     out.assign(size_t(hs_.num_components), ComponentMoments{});
     for (int64_t i = 0; i < nr_; ++i) {
       if (hs_.q[i] == 0.0) continue;
-      ComponentMoments& m = out[lat_.component[i]];
+      ComponentMoments& m = out[hs_.node_component[i]];
       const Eigen::Vector3d p = Pc.row(i).transpose(), h = H_.row(i).transpose();
       m.w += hs_.q[i];
       m.p += hs_.q[i] * p;
@@ -122,7 +123,7 @@ class CpuBackend final : public Backend {
   void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override {
     const int64_t n = lat_.num_nodes();
     for (int64_t i = 0; i < n; ++i) {
-      const ComponentMotion& mo = motions[lat_.component[i]];
+      const ComponentMotion& mo = motions[hs_.node_component[i]];
       if (!mo.active || hs_.anchored[i]) continue;
       // The motion maps centred coordinates (the moments are centred at origin).
       const Eigen::Vector3d x = (from_rest ? lat_.rest : pose_).row(i).transpose() - hs_.origin;
@@ -203,13 +204,13 @@ class CpuBackend final : public Backend {
                                       (pose_.row(i) - lat_.rest.row(i)).squaredNorm());
   }
 
-  // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term
-  // c~^T M c~ - 2 c~ . H~ + K~ (handle_system.h).
+  // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term and
+  // the glue, c~^T (M + mu G^T G) c~ - 2 c~ . H~ + K~ (handle_system.h).
   double finish_energy() {
     double total = 0.0;
     for (double e : node_energy_) total += e;
     const RowMatrixX3d Pc = pose_.topRows(nr_).rowwise() - hs_.origin.transpose();
-    const RowMatrixX3d MP = M_ * Pc;
+    const RowMatrixX3d MP = C_ * Pc;
     double handles = (Pc.array() * (MP - 2.0 * H_.topRows(nr_)).array()).sum();
     for (double k : K_) handles += k;
     return (total + std::max(handles, 0.0)) * hs_.energy_scale;
@@ -243,7 +244,8 @@ class CpuBackend final : public Backend {
   std::vector<Rotation> R_;
   std::vector<double> node_energy_;
   HandleSystem hs_;
-  Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B
+  Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
+  Eigen::SparseMatrix<double> C_;  // M + the glue of carried parts (the system and the energy)
   RowMatrixX3d H_;                 // H~ of the current targets
   std::vector<double> K_;          // K~ per component
   bool targets_set_ = false;

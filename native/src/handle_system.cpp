@@ -6,6 +6,7 @@
 #include <array>
 #include <limits>
 
+#include "carried_parts.h"
 #include "parallel.h"
 
 namespace larap {
@@ -60,9 +61,12 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
     hs.row_component[j] = comp;
     if (hs.alpha[j] > 0.0) has_handle[comp] = 1;
   }
-  hs.anchored.resize(size_t(nn));
-  for (int64_t i = 0; i < nn; ++i) hs.anchored[i] = has_handle[lat.component[i]] ? 0 : 1;
+  CarriedParts carried = carried_parts(lat, has_handle);
+  hs.anchored = std::move(carried.anchored);
+  hs.node_component = std::move(carried.node_component);
+  hs.glue = std::move(carried.glue);
   hs.anchor_weight = 2.0 * hs.gamma_eff;
+  hs.glue_weight = kGlue * hs.gamma_eff;
 
   // q = B^T alpha; per (node, group) q_g[i] and P_g[i], accumulated group by group in a dense
   // scratch row over the nodes the group touches, then ordered by node (counting sort); per
@@ -197,6 +201,25 @@ Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_no
   B.setFromTriplets(bt.begin(), bt.end());
   AB.setFromTriplets(abt.begin(), abt.end());
   Eigen::SparseMatrix<double> M = Eigen::SparseMatrix<double>(B.transpose()) * AB;
+  M.makeCompressed();
+  return M;
+}
+
+Eigen::SparseMatrix<double> coupling_matrix(const HandleSystem& hs, int64_t num_nodes) {
+  Eigen::SparseMatrix<double> M = handle_matrix(hs, num_nodes);
+  if (hs.glue.empty()) return M;
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(4 * hs.glue.size());
+  const double mu = hs.glue_weight;
+  for (const auto& [a, b] : hs.glue) {
+    trip.emplace_back(a, a, mu);
+    trip.emplace_back(b, b, mu);
+    trip.emplace_back(a, b, -mu);
+    trip.emplace_back(b, a, -mu);
+  }
+  Eigen::SparseMatrix<double> G(num_nodes, num_nodes);
+  G.setFromTriplets(trip.begin(), trip.end());
+  M += G;
   M.makeCompressed();
   return M;
 }

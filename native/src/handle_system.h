@@ -1,10 +1,12 @@
 // The handle term of the energy, as the backends see it: which lattice nodes each handle vertex
 // reads (the rows of B), how much each row pulls (alpha), the handle groups with what a pose
 // needs of them precomputed, how strongly the ARAP term weighs against the handles (gamma_eff),
-// and which nodes are held at rest because their lattice component has no handle.
+// which lattice components without a handle follow a handled one (carried_parts.h) and which
+// are held at rest because nothing carries them.
 //
 //   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} w_ij |(c'_i - c'_j) - R_i (c_i - c_j)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
+//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2
 //
 // Rows come in groups g = 1..G (a vertex group driven by one transform). Row j of group g pulls
 // alpha_j = (w_g / G) * omega_j / sum_{k in g} omega_k: every group pulls with its own weight w_g
@@ -28,10 +30,13 @@
 //   H~_i = sum_g P_g[i] A_g^T + q_g[i] b~_g^T,   P_g[i] = sum_{j in g} alpha_j B_ji v~_j^T,
 //   q_g[i] = sum_{j in g} alpha_j B_ji,           b~_g = A_g origin + b_g - origin,
 // and K~ from each group's moments (s0, s1, S2) of alpha v~: both O(nodes the groups touch).
+// The glue adds mu G^T G to M in the system and the energy (coupling_matrix), and nothing to H~
+// or K~; the warm start's moments use M alone.
 #pragma once
 #include <larap/lattice.h>
 
 #include <Eigen/SparseCore>
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -68,6 +73,9 @@ struct HandleSystem {
   double gamma_eff = 0.0;              // ARAP weight in the form above
   std::vector<uint8_t> anchored;       // #N, 1 = held at rest
   double anchor_weight = 0.0;          // a
+  std::vector<std::array<int32_t, 2>> glue;  // (carried node, carrier node) pairs
+  double glue_weight = 0.0;            // mu
+  std::vector<int32_t> node_component; // #N: the component whose warm start a node takes
   double energy_scale = 1.0;           // reported energy = E * energy_scale (= 1 / s^2)
   int32_t num_components = 0;          // of the lattice
 
@@ -112,6 +120,13 @@ void group_constants(const HandleSystem& hs, const GroupMaps& maps, std::vector<
 
 // M = B^T diag(alpha) B (#N by #N).
 Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_nodes);
+// M + mu G^T G: the handle term and the glue of carried parts, as the system and the energy use
+// them (equal to M when nothing is carried).
+Eigen::SparseMatrix<double> coupling_matrix(const HandleSystem& hs, int64_t num_nodes);
+
+// Glue weight per unit of gamma_eff: a glued node pulls towards its carrier about as hard as its
+// own lattice edges hold it (docs/method.md, *Parts without handles*).
+constexpr double kGlue = 8.0;
 
 // Triplets of 2 gamma_eff L + a I_anchored (the ARAP part of the system matrix), shared by the
 // backends so that both assemble exactly the same system.

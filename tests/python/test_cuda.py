@@ -129,6 +129,27 @@ def test_weighted_split_lattice_agrees_with_cpu(weights):
     assert abs(out["cpu_e"] - out["cuda_e"]) <= 1e-3 * out["cpu_e"] + 1e-9
 
 
+@need_cuda
+@pytest.mark.parametrize("weights,levels", [("trilinear", 1), ("bspline", 1), ("trilinear", 3)])
+def test_carried_part_agrees_with_cpu(weights, levels):
+    """A sleeve without handles glued to the arm it sits on (carried_parts.h): the glue in the
+    system, the energy and the residual, and the carrier's warm start, agree on both devices."""
+    from test_topology import H, arm_in_sleeve
+    V, F, _, sleeve, groups, T = arm_in_sleeve(0.3)
+    out = {}
+    for dev in ("cpu", "cuda"):
+        d = larap.Deformer(V, F, cell_size=H, weights=weights, levels=levels, device=dev)
+        d.set_handle_groups(groups)
+        out[dev] = d.solve(transforms=T, iterations=200)
+        E = np.array(d.stats["energy"])
+        assert np.all(np.diff(E) <= 1e-4 * E[0] + 1e-7), (dev, E)
+        out[dev + "_e"] = E[-1]
+    err = np.linalg.norm(out["cpu"] - out["cuda"], axis=1).max()
+    assert err < 1e-4 * diag(V), f"max vertex distance {err / diag(V):.3g} of the diagonal"
+    assert abs(out["cpu_e"] - out["cuda_e"]) <= 1e-3 * out["cpu_e"] + 1e-9
+    assert np.linalg.norm(out["cuda"][sleeve] - V[sleeve], axis=1).mean() > 1.0  # it followed
+
+
 @pytest.mark.parametrize("device", devices())
 def test_handles_reach_targets_like_cpu(device):
     V, F, h, nl = tube_model()

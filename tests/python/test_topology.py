@@ -255,6 +255,56 @@ def test_separate_part_with_still_handles_does_not_move(weights, levels):
     assert np.linalg.norm(X[second] - V[second], axis=1).max() <= 0.001 * 4.0
 
 
+def arm_in_sleeve(gap):
+    """An arm (closed tube along x, radius 1.5, 12 long) and an open sleeve around its middle
+    third, `gap` cells off its surface; the arm's two ends are the handle groups (25% of the
+    vertices), the sleeve has none. Returns V, F, arm ids, sleeve ids, groups, the elbow bend."""
+    arm = shapes.tube(length=12.0, radius=1.5, segments=32, rings=48)
+    sleeve = shapes.tube(length=4.0, radius=1.5 + gap * H, segments=32, rings=16, caps=False)
+    sleeve = (np.asarray(sleeve[0]) + [4.0, 0.0, 0.0], sleeve[1])
+    V, F = shapes.concat(arm, sleeve)
+    n = len(arm[0])
+    ids = np.arange(n)
+    groups = [ids[V[ids, 0] < 1.5], ids[V[ids, 0] > 10.5]]
+    T = np.stack([np.eye(4), affine(rotation([0, 0, 1], 60), pivot=(6.0, 0.0, 0.0))])
+    return V, F, ids, np.arange(n, len(V)), groups, T
+
+
+@pytest.mark.parametrize("gap", [0.1, 0.3, 0.8])
+@pytest.mark.parametrize("weights,levels", [("trilinear", 1), ("bspline", 1), ("trilinear", 3)])
+@pytest.mark.parametrize("device", cpu_and_cuda())
+def test_a_part_without_handles_follows_the_part_it_sits_on(gap, weights, levels, device):
+    """A sleeve a tenth of a cell to most of a cell off an arm has cells of its own and no handle:
+    it follows the arm's bend (carried_parts.h) instead of staying where it was. Each sleeve
+    vertex lies straight out from an arm vertex at rest; posed, their distance stays within a
+    quarter of the gap (measured: within 16%; a sleeve left behind is units away)."""
+    V, F, arm, sleeve, groups, T = arm_in_sleeve(gap)
+    d = larap.Deformer(V, F, cell_size=H, weights=weights, levels=levels, device=device)
+    assert d.num_components == 2  # the sleeve has cells of its own
+    d.set_handle_groups(groups)
+    X = d.solve(transforms=T, iterations=30)
+    rest = np.linalg.norm(V[sleeve][:, None, :] - V[arm][None, :, :], axis=2)
+    under = arm[rest.argmin(axis=1)]  # the arm vertex straight under each sleeve vertex
+    assert np.allclose(rest.min(axis=1), gap * H)
+    posed = np.linalg.norm(X[sleeve] - X[under], axis=1)
+    assert np.abs(posed - gap * H).max() <= 0.25 * gap * H, (posed.min(), posed.max())
+    assert np.linalg.norm(X[sleeve] - V[sleeve], axis=1).mean() > 0.1 * 12.0  # it did move
+
+
+def test_a_part_far_from_every_handled_part_stays_at_rest():
+    """A part more than a cell from everything that moves has nothing to follow: held at rest."""
+    V, F, arm, sleeve, groups, T = arm_in_sleeve(0.3)
+    far = shapes.box((30.0, 0.0, 0.0), (32.0, 2.0, 2.0), 4)
+    V, F = shapes.concat((V, F), far)
+    d = larap.Deformer(V, F, cell_size=H)
+    assert d.num_components == 3
+    d.set_handle_groups(groups)
+    X = d.solve(transforms=T, iterations=10)
+    far_ids = np.arange(len(V) - len(far[0]), len(V))
+    assert np.abs(X[far_ids] - V[far_ids]).max() <= 1e-12 * diagonal(V)
+    assert np.linalg.norm(X[sleeve] - V[sleeve], axis=1).mean() > 0.1 * 12.0
+
+
 def test_lattice_pose_does_not_depend_on_the_weight_kind():
     V, F, tine_ids, _ = comb()
     groups, T = comb_pose(V, tine_ids, moved=0)

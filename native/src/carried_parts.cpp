@@ -1,7 +1,6 @@
 #include "carried_parts.h"
 
 #include <algorithm>
-#include <map>
 #include <tuple>
 #include <utility>
 
@@ -46,25 +45,51 @@ CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_h
   }
   std::sort(pairs.begin(), pairs.end());
 
-  // Rounds: a free component is carried by the resolved component (handled, or carried in an
-  // earlier round) it shares most grid points with.
-  std::vector<uint8_t> resolved(has_handle.begin(), has_handle.end());
-  for (bool grew = true; grew;) {
-    grew = false;
-    std::map<std::pair<int32_t, int32_t>, int64_t> shared;  // (free, resolved) -> points
-    for (const auto& [i, j] : pairs) {
-      const int32_t ci = lat.component[i], cj = lat.component[j];
-      if (!resolved[ci] && resolved[cj]) ++shared[{ci, cj}];
+  // Links between components: (other component, free component, shared grid points), ordered by
+  // the other component.
+  struct Link {
+    int32_t other, free;
+    int64_t points;
+  };
+  std::vector<std::pair<int32_t, int32_t>> comp_pairs;
+  comp_pairs.reserve(pairs.size());
+  for (const auto& [i, j] : pairs) comp_pairs.emplace_back(lat.component[j], lat.component[i]);
+  std::sort(comp_pairs.begin(), comp_pairs.end());
+  std::vector<Link> links;
+  for (size_t k = 0; k < comp_pairs.size(); ++k) {
+    if (k > 0 && comp_pairs[k] == comp_pairs[k - 1]) {
+      ++links.back().points;
+      continue;
     }
-    std::vector<std::pair<int32_t, int64_t>> best(size_t(nc), {-1, 0});
-    for (const auto& [key, count] : shared)  // ascending carrier id: ties keep the lower
-      if (count > best[key.first].second) best[key.first] = {key.second, count};
-    for (int32_t c = 0; c < nc; ++c)
-      if (best[c].first >= 0) {
-        out.carrier[c] = best[c].first;
-        resolved[c] = 1;
-        grew = true;
+    links.push_back({comp_pairs[k].first, comp_pairs[k].second, 1});
+  }
+  std::vector<int64_t> link_offsets(size_t(nc) + 1, 0);
+  for (const Link& l : links) ++link_offsets[size_t(l.other) + 1];
+  for (int32_t c = 0; c < nc; ++c) link_offsets[size_t(c) + 1] += link_offsets[size_t(c)];
+
+  // Rounds, breadth first: a free component is carried by the component resolved in the last
+  // round (handled, in the first) that it shares most grid points with (ties: the lower id). A
+  // component resolved earlier has no unresolved neighbour left, so only the last round's count.
+  std::vector<uint8_t> resolved(has_handle.begin(), has_handle.end());
+  std::vector<int32_t> frontier;
+  for (int32_t c = 0; c < nc; ++c)
+    if (has_handle[c]) frontier.push_back(c);
+  std::vector<int64_t> best_points(size_t(nc), 0);
+  while (!frontier.empty()) {
+    std::vector<int32_t> next;
+    for (const int32_t r : frontier)  // ascending: ties keep the lower carrier
+      for (int64_t k = link_offsets[r]; k < link_offsets[size_t(r) + 1]; ++k) {
+        const Link& l = links[size_t(k)];
+        if (resolved[l.free]) continue;
+        if (out.carrier[l.free] < 0) next.push_back(l.free);
+        if (l.points > best_points[l.free]) {
+          best_points[l.free] = l.points;
+          out.carrier[l.free] = r;
+        }
       }
+    for (const int32_t c : next) resolved[c] = 1;
+    frontier = std::move(next);
+    std::sort(frontier.begin(), frontier.end());
   }
 
   // Each carried node is glued to the lowest-numbered node of its carrier at its grid point.

@@ -95,6 +95,48 @@ def test_object_transform_is_respected(core):
     assert np.linalg.norm(pose[right] - (rest[right] + [0, 0, 1.0]), axis=1).max() < 0.02 * diagonal(rest)
 
 
+def test_sleeve_without_handle_follows_the_arm(core):
+    """An open sleeve a third of a cell off an arm, in the same object, with no handle: it has
+    cells of its own (Parts Apart) and follows the arm's bend, keeping its distance to the arm."""
+    length, radius, segments, gap = 4.0, 0.25, 16, 0.05
+    ang = np.linspace(0, 2 * math.pi, segments, endpoint=False)
+    ring = lambda x, r: [(x, r * math.cos(a), r * math.sin(a)) for a in ang]
+    xs = np.linspace(-length / 2, length / 2, 41)
+    sleeve_xs = xs[np.abs(xs) <= 0.7 + 1e-9]
+    verts = [v for x in xs for v in ring(x, radius)] + [v for x in sleeve_xs for v in ring(x, radius + gap)]
+    faces = []
+    for first, rings in ((0, len(xs)), (len(xs) * segments, len(sleeve_xs))):
+        for r in range(rings - 1):
+            for k in range(segments):
+                a, b = first + r * segments + k, first + r * segments + (k + 1) % segments
+                faces.append((a, b, b + segments, a + segments))
+    faces.append(tuple(reversed(range(segments))))
+    faces.append(tuple((len(xs) - 1) * segments + k for k in range(segments)))
+    obj = mesh_object("ArmInSleeve", verts, faces)
+    rest = coords(obj)
+    arm = np.arange(len(xs) * segments)
+    sleeve = np.arange(len(xs) * segments, len(rest))
+    add_group(obj, "Shoulder", arm[rest[arm, 0] < -1.6])
+    add_group(obj, "Hand", arm[rest[arm, 0] > 1.6])
+    bpy.ops.larap.handle_add(vertex_group="Shoulder")
+    bpy.ops.larap.handle_add(vertex_group="Hand")
+    obj.larap.resolution_mode = "SIZE"
+    obj.larap.cell_size = 0.15
+    obj.larap.iterations = 30
+    assert bpy.ops.larap.bind() == {"FINISHED"}
+    assert core.runtime(obj).deformer.num_components == 2  # the sleeve has cells of its own
+    hand = obj.larap.handles[1].target
+    hand.matrix_world = (Matrix.Translation((0.0, 0.0, 0.0)) @ Matrix.Rotation(math.radians(60), 4, "Z")
+                         @ hand.matrix_world)  # the forearm turned 60 degrees about the elbow
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    pose = coords(obj, "LARAP")
+    under = arm[len(xs) // 2 * segments - len(sleeve_xs) // 2 * segments:][:len(sleeve)]
+    assert np.allclose(np.linalg.norm(rest[sleeve] - rest[under], axis=1), gap)
+    posed = np.linalg.norm(pose[sleeve] - pose[under], axis=1)
+    assert np.abs(posed - gap).max() <= 0.25 * gap, (posed.min(), posed.max())
+    assert np.linalg.norm(pose[sleeve] - rest[sleeve], axis=1).mean() > 0.1  # it followed the bend
+
+
 def suzanne_with_handles(core):
     bpy.ops.mesh.primitive_monkey_add()
     obj = bpy.context.object

@@ -257,7 +257,7 @@ def test_separate_part_with_still_handles_does_not_move(weights, levels):
 
 def arm_in_sleeve(gap):
     """An arm (closed tube along x, radius 1.5, 12 long) and an open sleeve around its middle
-    third, `gap` cells off its surface; the arm's two ends are the handle groups (25% of the
+    third, `gap` cells off its surface; the arm's two ends are the handle groups (18% of the
     vertices), the sleeve has none. Returns V, F, arm ids, sleeve ids, groups, the elbow bend."""
     arm = shapes.tube(length=12.0, radius=1.5, segments=32, rings=48)
     sleeve = shapes.tube(length=4.0, radius=1.5 + gap * H, segments=32, rings=16, caps=False)

@@ -28,7 +28,10 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   const auto trip = arap_triplets(lat_, hs);
   SpR A(n, n);
   A.setFromTriplets(trip.begin(), trip.end());
-  SpR M = coupling_matrix(hs, n);  // B^T diag(alpha) B + the glue of carried parts
+  SpR Mh = handle_matrix(hs, n);  // B^T diag(alpha) B: the warm start's moments
+  Mh.makeCompressed();
+  SpR M = Mh;
+  if (!hs.glue.empty()) M += SpR(glue_matrix(hs, n));  // and the glue of carried parts
   M.makeCompressed();
   A = SpR(A + M);
   A.makeCompressed();
@@ -87,13 +90,10 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
     moment_chunks_.m_off = sys_.m_off;
     moment_chunks_.m_col = sys_.m_col;
     moment_chunks_.m_val = sys_.m_val;
-  } else {
-    SpR Mh = handle_matrix(hs, n);
-    Mh.makeCompressed();
+  } else {  // `Mh` lives until the stream is synchronised below
     moment_chunks_.m_off = mh_off_.upload(Mh.outerIndexPtr(), size_t(n) + 1, stream_);
     moment_chunks_.m_col = mh_col_.upload(Mh.innerIndexPtr(), size_t(Mh.nonZeros()), stream_);
     moment_chunks_.m_val = mh_val_.upload(Mh.valuePtr(), size_t(Mh.nonZeros()), stream_);
-    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // `Mh` may go
   }
   comp_.upload(hs.node_component.data(), size_t(n_all_), stream_);  // carried parts: the carrier's
   sys_.q = q_.upload(hs.q.data(), hs.q.size(), stream_);

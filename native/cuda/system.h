@@ -50,7 +50,7 @@ struct System {
   const float* a_val = nullptr;
   const float* minv = nullptr;  // 1 / diag(A)
   // The handle term (handle_system.h): c^T M c - 2 c . H + K, M = B^T diag(alpha) B plus the
-  // glue of carried parts (coupling_matrix) as CSR over all n nodes (rows of nodes no handle or
+  // glue of carried parts (glue_matrix) as CSR over all n nodes (rows of nodes no handle or
   // glue reads are empty), in double: the term is a small difference of large sums near
   // convergence, which float would lose. K (per pose, per lattice component) stays on the host.
   // Nothing here runs over handle rows.

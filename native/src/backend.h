@@ -5,11 +5,13 @@
 // j = 1..m with weights B (m by #N, 8 or 27 entries a row), row weights alpha and targets t.
 //   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} |(c'_i - c'_j) - R_i (c_i - c_j)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
+//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2
 // minimised by flip-flop: R_i from the 3x3 SVD of S_i = sum_j (c_i - c_j)(c'_i - c'_j)^T, then
-//   (2 gamma_eff L + M + a I_anchored) c' = gamma_eff b + B^T alpha t + a c_anchored,
+//   (2 gamma_eff L + M + mu G^T G + a I_anchored) c' = gamma_eff b + B^T alpha t + a c_anchored,
 //   b_i = sum_{j in N(i)} (R_i + R_j)(c_i - c_j),   M = B^T diag(alpha) B,
-// L the graph Laplacian of the lattice edges. Anchored nodes are those of lattice components
-// that hold no handle: they stay at rest. A pose's targets reach the backend as H~ = B^T alpha t~
+// L the graph Laplacian of the lattice edges. A lattice component that holds no handle is carried
+// by a handled one it lies along, glued to it (G, carried_parts.h), or else anchored: held at
+// rest. A pose's targets reach the backend as H~ = B^T alpha t~
 // and K~ (handle_system.h), so nothing per pose costs in proportion to the handle rows.
 #pragma once
 #include <larap/binding.h>

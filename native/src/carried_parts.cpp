@@ -14,6 +14,12 @@ struct FreeNode {
   bool operator<(const FreeNode& o) const { return std::tie(x, y, z, node) < std::tie(o.x, o.y, o.z, o.node); }
 };
 
+// Free component `free` has `nodes` real nodes at grid points of component `other`'s nodes.
+struct Link {
+  int32_t other, free;
+  int64_t nodes;
+};
+
 }  // namespace
 
 CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_handle) {
@@ -45,20 +51,22 @@ CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_h
   }
   std::sort(pairs.begin(), pairs.end());
 
-  // Links between components: (other component, free component, shared grid points), ordered by
-  // the other component.
-  struct Link {
-    int32_t other, free;
-    int64_t points;
-  };
-  std::vector<std::pair<int32_t, int32_t>> comp_pairs;
+  // Links between components: (other component, free component, the free component's nodes at a
+  // grid point of the other's), ordered by the other component.
+  std::vector<std::pair<int32_t, int32_t>> comp_pairs;  // (other, free), once per free node
   comp_pairs.reserve(pairs.size());
-  for (const auto& [i, j] : pairs) comp_pairs.emplace_back(lat.component[j], lat.component[i]);
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    const auto [i, j] = pairs[k];
+    const std::pair<int32_t, int32_t> link{lat.component[j], lat.component[i]};
+    bool seen = false;  // the same free node with another copy of the same component
+    for (size_t q = k; q-- > 0 && pairs[q].first == i;) seen |= lat.component[pairs[q].second] == link.first;
+    if (!seen) comp_pairs.push_back(link);
+  }
   std::sort(comp_pairs.begin(), comp_pairs.end());
   std::vector<Link> links;
   for (size_t k = 0; k < comp_pairs.size(); ++k) {
     if (k > 0 && comp_pairs[k] == comp_pairs[k - 1]) {
-      ++links.back().points;
+      ++links.back().nodes;
       continue;
     }
     links.push_back({comp_pairs[k].first, comp_pairs[k].second, 1});
@@ -66,24 +74,27 @@ CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_h
   std::vector<int64_t> link_offsets(size_t(nc) + 1, 0);
   for (const Link& l : links) ++link_offsets[size_t(l.other) + 1];
   for (int32_t c = 0; c < nc; ++c) link_offsets[size_t(c) + 1] += link_offsets[size_t(c)];
+  std::vector<int64_t> size(size_t(nc), 0);  // real nodes per component
+  for (int64_t i = 0; i < nr; ++i) ++size[size_t(lat.component[i])];
 
   // Rounds, breadth first: a free component is carried by the component resolved in the last
-  // round (handled, in the first) that it shares most grid points with (ties: the lower id). A
-  // component resolved earlier has no unresolved neighbour left, so only the last round's count.
+  // round (handled, in the first) that holds most of its nodes at its grid points (ties: the lower
+  // id), when that is at least kCarriedShare of its nodes. A component resolved earlier has no
+  // unresolved neighbour left, so only the last round's count.
   std::vector<uint8_t> resolved(has_handle.begin(), has_handle.end());
   std::vector<int32_t> frontier;
   for (int32_t c = 0; c < nc; ++c)
     if (has_handle[c]) frontier.push_back(c);
-  std::vector<int64_t> best_points(size_t(nc), 0);
+  std::vector<int64_t> best_nodes(size_t(nc), 0);
   while (!frontier.empty()) {
     std::vector<int32_t> next;
     for (const int32_t r : frontier)  // ascending: ties keep the lower carrier
       for (int64_t k = link_offsets[r]; k < link_offsets[size_t(r) + 1]; ++k) {
         const Link& l = links[size_t(k)];
-        if (resolved[l.free]) continue;
+        if (resolved[l.free] || !(double(l.nodes) >= kCarriedShare * double(size[size_t(l.free)]))) continue;
         if (out.carrier[l.free] < 0) next.push_back(l.free);
-        if (l.points > best_points[l.free]) {
-          best_points[l.free] = l.points;
+        if (l.nodes > best_nodes[l.free]) {
+          best_nodes[l.free] = l.nodes;
           out.carrier[l.free] = r;
         }
       }
@@ -92,10 +103,26 @@ CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_h
     std::sort(frontier.begin(), frontier.end());
   }
 
-  // Each carried node is glued to the lowest-numbered node of its carrier at its grid point.
-  for (const auto& [i, j] : pairs) {
-    if (!out.glue.empty() && out.glue.back()[0] == i) continue;  // pairs are ordered by i
-    if (lat.component[j] == out.carrier[lat.component[i]]) out.glue.push_back({i, j});
+  // Each carried node is glued to the carrier's node at its grid point whose cells lie in most of
+  // the same places as its own (a ring around one of two fingers that a split cell keeps apart
+  // glues to that finger's copy), ties to the lower id.
+  std::vector<uint8_t> octants(size_t(nr), 0);  // bit k: a cell copy has the node as its corner k
+  for (const auto& corners : lat.cell_nodes)
+    for (int k = 0; k < 8; ++k)
+      if (corners[k] < nr) octants[size_t(corners[k])] |= uint8_t(1u << k);
+  for (size_t k = 0; k < pairs.size();) {
+    const int32_t i = pairs[k].first, carrier = out.carrier[lat.component[i]];
+    int32_t best = -1, best_common = -1;
+    for (; k < pairs.size() && pairs[k].first == i; ++k) {
+      const int32_t j = pairs[k].second;
+      if (carrier < 0 || lat.component[j] != carrier) continue;
+      const int common = __builtin_popcount(unsigned(octants[size_t(i)] & octants[size_t(j)]));
+      if (common > best_common) {
+        best = j;
+        best_common = common;
+      }
+    }
+    if (best >= 0) out.glue.push_back({i, best});
   }
 
   std::vector<int32_t> root(static_cast<size_t>(nc));

@@ -78,7 +78,7 @@ class CpuBackend final : public Backend {
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     M_ = handle_matrix(hs, n);
-    C_ = coupling_matrix(hs, n);  // M and the glue of carried parts
+    C_ = M_ + glue_matrix(hs, n);  // M and the glue of carried parts
     A += C_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();

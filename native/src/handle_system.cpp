@@ -49,8 +49,8 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   hs.gamma_eff = gamma * s * s / (h * h * directed);
   hs.energy_scale = 1.0 / (s * s);
 
-  // The component of each row; components without a pulling row stay at rest (their system
-  // would be singular otherwise).
+  // The component of each row; components without a pulling row are carried by a handled one
+  // (carried_parts.h) or else stay at rest (their system would be singular otherwise).
   hs.row_component.assign(size_t(m), 0);
   std::vector<uint8_t> has_handle(size_t(lat.num_components), 0);
   for (int64_t j = 0; j < m; ++j) {
@@ -205,9 +205,7 @@ Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_no
   return M;
 }
 
-Eigen::SparseMatrix<double> coupling_matrix(const HandleSystem& hs, int64_t num_nodes) {
-  Eigen::SparseMatrix<double> M = handle_matrix(hs, num_nodes);
-  if (hs.glue.empty()) return M;
+Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_nodes) {
   std::vector<Eigen::Triplet<double>> trip;
   trip.reserve(4 * hs.glue.size());
   const double mu = hs.glue_weight;
@@ -219,9 +217,7 @@ Eigen::SparseMatrix<double> coupling_matrix(const HandleSystem& hs, int64_t num_
   }
   Eigen::SparseMatrix<double> G(num_nodes, num_nodes);
   G.setFromTriplets(trip.begin(), trip.end());
-  M += G;
-  M.makeCompressed();
-  return M;
+  return G;
 }
 
 std::vector<Eigen::Triplet<double>> arap_triplets(const Lattice& lat, const HandleSystem& hs) {

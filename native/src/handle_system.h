@@ -30,8 +30,8 @@
 //   H~_i = sum_g P_g[i] A_g^T + q_g[i] b~_g^T,   P_g[i] = sum_{j in g} alpha_j B_ji v~_j^T,
 //   q_g[i] = sum_{j in g} alpha_j B_ji,           b~_g = A_g origin + b_g - origin,
 // and K~ from each group's moments (s0, s1, S2) of alpha v~: both O(nodes the groups touch).
-// The glue adds mu G^T G to M in the system and the energy (coupling_matrix), and nothing to H~
-// or K~; the warm start's moments use M alone.
+// The glue adds mu G^T G to M in the system and the energy (glue_matrix), and nothing to H~ or
+// K~; the warm start's moments use M alone.
 #pragma once
 #include <larap/lattice.h>
 
@@ -120,13 +120,9 @@ void group_constants(const HandleSystem& hs, const GroupMaps& maps, std::vector<
 
 // M = B^T diag(alpha) B (#N by #N).
 Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_nodes);
-// M + mu G^T G: the handle term and the glue of carried parts, as the system and the energy use
-// them (equal to M when nothing is carried).
-Eigen::SparseMatrix<double> coupling_matrix(const HandleSystem& hs, int64_t num_nodes);
-
-// Glue weight per unit of gamma_eff: a glued node pulls towards its carrier about as hard as its
-// own lattice edges hold it (docs/method.md, *Parts without handles*).
-constexpr double kGlue = 8.0;
+// mu G^T G: the glue of carried parts (empty when nothing is carried). The system and the energy
+// use M + mu G^T G, the warm start's moments M alone.
+Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_nodes);
 
 // Triplets of 2 gamma_eff L + a I_anchored (the ARAP part of the system matrix), shared by the
 // backends so that both assemble exactly the same system.

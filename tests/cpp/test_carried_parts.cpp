@@ -8,8 +8,13 @@
 
 #include <Eigen/Geometry>
 
+#include <larap/binding.h>
+
+#include "backend.h"
 #include "carried_parts.h"
+#include "handle_system.h"
 #include "test_meshes.h"
+#include "warm_start.h"
 
 using namespace larap;
 
@@ -173,4 +178,111 @@ TEST(CarriedParts, APartBetweenTwoHandledPartsCouplesNothing) {
   const int64_t carrier_first = left_carries ? 0 : 16;
   EXPECT_LE(max_distance(X, m.vertices, carrier_first, carrier_first + 8), 1e-7);
   EXPECT_LE(max_distance(X, m.vertices, 8, 16), 1e-7) << "the middle bar follows its still carrier";
+}
+
+// A plate lying along one handled bar and touching a second handled bar at its end is carried by
+// the first (it shares most of its nodes), and moving the second leaves it still.
+TEST(CarriedParts, ThePartSharingMostNodesCarries) {
+  const PolygonMesh m = gen::concat({bar(0.013, 2.011), gen::box({0.51, 0.017, 1.023 + 0.1 * kH}, {2.49, 1.019, 1.21}),
+                                     bar(2.49 + 0.1 * kH, 4.02)});
+  LatticeOptions lo;
+  lo.cell_size = kH;
+  const Lattice lat = Lattice::build(m, lo);
+  ASSERT_EQ(lat.num_components, 3);
+  const int32_t first = component_of(lat, 0), plate = component_of(lat, 8), second = component_of(lat, 16);
+  std::vector<uint8_t> has_handle(3, 1);
+  has_handle[size_t(plate)] = 0;
+  const CarriedParts cp = carried_parts(lat, has_handle);
+  EXPECT_EQ(cp.carrier[size_t(plate)], first);
+  int64_t with_second = 0;  // the plate does share nodes with the second bar
+  for (int64_t i = 0; i < lat.num_real_nodes(); ++i)
+    for (int64_t j = 0; j < lat.num_real_nodes(); ++j)
+      with_second += lat.component[i] == plate && lat.component[j] == second && lat.node_coords[i] == lat.node_coords[j];
+  EXPECT_GT(with_second, 0);
+
+  Deformer d(m, options(WeightKind::Trilinear, 1));
+  d.set_handle_groups({{0, 1, 2, 3, 4, 5, 6, 7}, {16, 17, 18, 19, 20, 21, 22, 23}});
+  const std::vector<double> maps = row_major({lift({0, 0, 0}), lift({0, 0, 0.5})});
+  RowMatrixX3d X(m.num_vertices(), 3);
+  d.solve_transforms(maps.data(), 20, X.data());
+  EXPECT_LE(max_distance(X, m.vertices, 8, 16), 1e-7);
+  EXPECT_GT(max_distance(X, m.vertices, 16, 24), 0.4);
+}
+
+// A part that touches a handled part along a sliver of itself (a floor under a foot) is not
+// carried: it stays at rest.
+TEST(CarriedParts, APartTouchedAlongASliverStays) {
+  const PolygonMesh m = gen::concat({bar(0.013, 1.011), gen::box({-3.0, -3.0, -0.6}, {4.0, 4.0, 0.021 - 0.1 * kH})});
+  LatticeOptions lo;
+  lo.cell_size = kH;
+  const Lattice lat = Lattice::build(m, lo);
+  ASSERT_EQ(lat.num_components, 2);
+  const int32_t foot = component_of(lat, 0), floor = component_of(lat, 8);
+  std::vector<uint8_t> has_handle(2, 0);
+  has_handle[size_t(foot)] = 1;
+  const CarriedParts cp = carried_parts(lat, has_handle);
+  EXPECT_EQ(cp.carrier[size_t(floor)], -1);
+  EXPECT_TRUE(cp.glue.empty());
+  for (int64_t i = 0; i < lat.num_nodes(); ++i) EXPECT_EQ(cp.anchored[i], lat.component[i] == floor ? 1 : 0);
+}
+
+// The warm start's moments are sums over the handle rows (warm_start.h): the glue must not enter
+// them, even where it is stretched.
+TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
+  const PolygonMesh m = scene();
+  LatticeOptions lo;
+  lo.cell_size = kH;
+  const Lattice lat = Lattice::build(m, lo);
+  std::vector<int32_t> cells(8);
+  RowMatrixX3d rest(8, 3);
+  HandleSpec spec;
+  spec.group_offsets = {0, 4, 8};
+  for (int end = 0; end < 2; ++end)  // A's two ends, group by group (gen::box: odd corners at high x)
+    for (int64_t v = kA; v < kA + 8; ++v)
+      if ((v & 1) == end) spec.vertices.push_back(v);
+  for (int64_t j = 0; j < 8; ++j) {
+    cells[size_t(j)] = lat.vertex_cell[spec.vertices[size_t(j)]];
+    rest.row(j) = m.vertices.row(spec.vertices[size_t(j)]);
+  }
+  spec.rest = rest;
+  const Binding b = bind_points(lat, rest, cells, WeightKind::Trilinear);
+  std::vector<int32_t> ids(64);
+  std::vector<double> w(64);
+  for (int64_t j = 0; j < 8; ++j) b.weights_of(lat, j, &ids[size_t(j) * 8], &w[size_t(j) * 8]);
+  const Eigen::Vector3d origin(0.3, -0.2, 0.1);
+  const HandleSystem hs = make_handle_system(lat, 8, ids, w, spec, 0.1, 1.0, origin);
+  ASSERT_FALSE(hs.glue.empty());
+
+  auto backend = make_cpu_backend(lat, m.vertices);
+  backend->set_handles(hs);
+  RowMatrixX3d targets = rest;
+  targets.col(2).array() += 0.4;
+  targets(5, 0) += 0.2;
+  backend->set_targets(HandleTargets{targets.data(), nullptr});
+  RowMatrixX3d pose = lat.rest;  // every node moved differently: the glue is stretched
+  for (int64_t i = 0; i < pose.rows(); ++i) pose.row(i) += Eigen::RowVector3d(0.01 * (i % 7), -0.02 * (i % 5), 0.03 * (i % 3));
+  backend->set_pose(pose);
+  std::vector<ComponentMoments> got;
+  backend->moments(false, got);
+
+  ComponentMoments want;
+  for (int64_t j = 0; j < 8; ++j) {
+    Eigen::Vector3d p = -origin;
+    for (int k = 0; k < 8; ++k) p += w[size_t(j) * 8 + k] * pose.row(ids[size_t(j) * 8 + k]).transpose();
+    const Eigen::Vector3d t = targets.row(j).transpose() - origin;
+    const double a = hs.alpha[size_t(j)];
+    want.w += a;
+    want.p += a * p;
+    want.t += a * t;
+    want.pt += a * p * t.transpose();
+    want.pp += a * p * p.transpose();
+    want.tt += a * t.squaredNorm();
+  }
+  const ComponentMoments& g = got[size_t(hs.row_component[0])];
+  EXPECT_NEAR(g.w, want.w, 1e-12);
+  EXPECT_LE((g.p - want.p).norm(), 1e-12);
+  EXPECT_LE((g.t - want.t).norm(), 1e-12);
+  EXPECT_LE((g.pt - want.pt).norm(), 1e-12);
+  EXPECT_LE((g.pp - want.pp).norm(), 1e-12);
+  EXPECT_NEAR(g.tt, want.tt, 1e-12);
 }

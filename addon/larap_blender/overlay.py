@@ -2,8 +2,9 @@
 """3D View overlay: the lattice of bound meshes and their handle vertices.
 
 What it draws is always true, and says so: the lattice of the pose the mesh shows when the engine
-holds it (after a solve), else the rest lattice, greyed and labelled "rest lattice" (after an undo
-or a cancelled drag the engine no longer holds the shown pose). The lattice is depth-tested
+holds it (after a solve, or a cancelled drag, which puts the engine's lattice back), else the rest
+lattice, greyed and labelled "rest lattice" (after an undo the engine no longer holds the shown
+pose). The lattice is depth-tested
 against the mesh (only what is in front shows, like Blender's wireframe overlay) unless Lattice
 X-Ray or the viewport's X-Ray is on; a dense lattice is drawn fainter so the model stays readable.
 While Pose waits for a click (:func:`set_picking`), the handle vertices are drawn even with the
@@ -55,7 +56,7 @@ def clear_picking(obj=None):
 
 def lattice_state(obj, rt):
     """"pose": the lattice of the pose the mesh shows; "rest": the rest lattice (labelled), the
-    engine no longer holding the shown pose (undo, cancelled drag, reload); None: no lattice."""
+    engine no longer holding the shown pose (undo, reload); None: no lattice."""
     if rt is None or rt.deformer is None:
         return None
     return "pose" if rt.lattice_current else "rest"

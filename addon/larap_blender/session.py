@@ -135,9 +135,9 @@ def _transform_restore(target, bone, snap):
 class PoseSession:
     """Drag one handle: move/rotate/scale its target about the handle's current centre.
 
-    begin() snapshots the pose key and the target's transform; update() solves with the interactive
-    weights and writes only the pose key; confirm() re-solves with the final weights; cancel()
-    restores the snapshot bit-exactly.
+    begin() snapshots the pose key, the target's transform and the engine's lattice state; update()
+    solves with the interactive weights and writes only the pose key; confirm() re-solves with the
+    final weights; cancel() restores the snapshot bit-exactly and the lattice state.
     """
 
     def __init__(self, obj, handle_index):
@@ -166,6 +166,10 @@ class PoseSession:
         rt = ensure_runtime(obj, "full")
         catchup.catch_up(obj)  # start from the mesh holding what is shown
         rt = ensure_runtime(obj, "fast")
+        # The engine's lattice of the shown pose, when it holds it: a cancel puts it back, so the
+        # overlay keeps showing the pose's lattice and the next solve starts where this one did.
+        self.engine = rt.deformer
+        self.lattice_state = rt.deformer.lattice_state() if rt.lattice_current and rt.deformer is not None else None
         self.stored = stored_signature(obj)
         self.wrote = False
         self.key_existed = bool(obj.data.shape_keys and obj.data.shape_keys.key_blocks.get(s.shape_key))
@@ -270,4 +274,8 @@ class PoseSession:
             rt.pose_version += 1
             rt.target_sig = target_signature(obj)
             if rt.deformer is not None:
-                rt.deformer.reset()
+                if self.lattice_state is not None and rt.deformer is self.engine:
+                    rt.deformer.set_lattice_state(self.lattice_state)
+                    rt.lattice_current = True
+                else:
+                    rt.deformer.reset()

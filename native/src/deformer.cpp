@@ -426,6 +426,30 @@ void Deformer::Impl::iterate_fine(int iterations, double tolerance) {
 const Lattice& Deformer::lattice() const { return impl_->lattice; }
 const PolygonMesh& Deformer::mesh() const { return impl_->mesh; }
 const Binding& Deformer::binding() const { return impl_->binding(); }
+std::vector<RowMatrixX3d> Deformer::lattice_state() const {
+  std::vector<RowMatrixX3d> state{lattice_deformed()};
+  for (RowMatrixX3d& coarse : impl_->hierarchy.poses()) state.push_back(std::move(coarse));
+  return state;
+}
+
+void Deformer::set_lattice_state(const std::vector<RowMatrixX3d>& state) {
+  Impl& d = *impl_;
+  const int levels = 1 + d.hierarchy.size();
+  if (int64_t(state.size()) != levels)
+    throw InvalidInput("lattice state: " + std::to_string(state.size()) + " levels given, this Deformer has " +
+                       std::to_string(levels));
+  for (int l = 0; l < levels; ++l) {
+    const int64_t n = l == 0 ? d.lattice.num_nodes() : d.hierarchy.num_nodes(l - 1);
+    if (state[size_t(l)].rows() != n)
+      throw InvalidInput("lattice state: level " + std::to_string(l) + " has " +
+                         std::to_string(state[size_t(l)].rows()) + " nodes, expected " + std::to_string(n));
+    if (!state[size_t(l)].allFinite())
+      throw InvalidInput("lattice state: level " + std::to_string(l) + " has a non-finite coordinate");
+  }
+  d.backend->set_pose(state[0]);
+  d.hierarchy.set_poses(std::vector<RowMatrixX3d>(state.begin() + 1, state.end()));
+}
+
 RowMatrixX3d Deformer::lattice_deformed() const {
   RowMatrixX3d p;
   impl_->backend->get_pose(p);

@@ -93,6 +93,18 @@ void Hierarchy::reset() {
   for (auto& lv : levels_) lv.backend->set_pose(lv.lattice.rest);
 }
 
+std::vector<RowMatrixX3d> Hierarchy::poses() const {
+  std::vector<RowMatrixX3d> out(levels_.size());
+  for (size_t l = 0; l < levels_.size(); ++l) levels_[l].backend->get_pose(out[l]);
+  return out;
+}
+
+void Hierarchy::set_poses(const std::vector<RowMatrixX3d>& poses) {
+  for (size_t l = 0; l < levels_.size(); ++l) levels_[l].backend->set_pose(poses[l]);
+}
+
+int64_t Hierarchy::num_nodes(int level) const { return levels_[size_t(level)].lattice.num_nodes(); }
+
 RowMatrixX3d Hierarchy::solve_increment(const HandleTargets& targets, int iterations,
                                         const std::vector<uint8_t>& fine_anchored, double still) {
   SolveStats scratch;

@@ -36,12 +36,17 @@ class Hierarchy {
 
   // Number of coarse levels (0: the fine lattice alone).
   int size() const;
+  // Nodes of coarse level `level` + 1 (0 <= level < size()).
+  int64_t num_nodes(int level) const;
 
   // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level.
   void set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin);
 
   // Every coarse level back to its rest pose.
   void reset();
+  // The coarse levels' poses (level 1 first), and putting them back (sizes checked by the caller).
+  std::vector<RowMatrixX3d> poses() const;
+  void set_poses(const std::vector<RowMatrixX3d>& poses);
 
   // Coarse to fine: each level takes the targets, chooses its start (warm_start.h, `still` as
   // there) and iterates `iterations` times from its own pose plus the increment of the level

@@ -320,6 +320,17 @@ class Deformer:
         """(N, 3) lattice node positions of the current pose."""
         return self._core.lattice_deformed()
 
+    def lattice_state(self) -> list:
+        """The lattice pose of every level (the fine lattice first, then the coarser levels of the
+        hierarchy), as (N_l, 3) arrays: what :meth:`set_lattice_state` puts back."""
+        return self._core.lattice_state()
+
+    def set_lattice_state(self, state) -> None:
+        """Put back a :meth:`lattice_state`: the next solve warm-starts from it (where
+        :meth:`reset` would start from rest). A cancelled drag uses it. ValueError (nothing
+        changed) unless ``state`` has one finite (N_l, 3) array per level of this Deformer."""
+        self._core.set_lattice_state([np.asarray(a, dtype=np.float64) for a in state])
+
     def cell_nodes(self) -> np.ndarray:
         """(C, 8) int32 corner node ids of every lattice cell; corner c = (c & 1, c >> 1 & 1, c >> 2)."""
         return self._core.cell_nodes()

@@ -239,6 +239,21 @@ void bind_deformer(py::module_& m) {
       .def("lattice_deformed", [](const PyDeformer& self) {
         return to_numpy(self.locked([](const D& d) { return d.lattice_deformed(); }));
       })
+      .def("lattice_state", [](const PyDeformer& self) {
+        const auto state = self.locked([](const D& d) { return d.lattice_state(); });
+        py::list out;
+        for (const auto& level : state) out.append(to_numpy(level));
+        return out;
+      })
+      .def("set_lattice_state", [](PyDeformer& self, const std::vector<F64>& state) {
+        std::vector<RowMatrixX3d> levels;
+        for (const F64& a : state) {
+          const auto info = a.request();
+          require_rows3(info, "every level of a lattice state", -1);
+          levels.emplace_back(Eigen::Map<const RowMatrixX3d>(a.data(), info.shape[0], 3));
+        }
+        self.locked([&](D& d) { d.set_lattice_state(levels); });
+      }, py::arg("state"))
       .def("lattice_edges", [](const PyDeformer& self) {
         const auto& e = self.engine.lattice().edges;
         py::array_t<int32_t> a({py::ssize_t(e.size()), py::ssize_t(2)});

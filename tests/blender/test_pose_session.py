@@ -36,6 +36,29 @@ def test_cancel_restores_bit_exactly(core):
     assert not session.active
 
 
+def test_cancel_puts_the_lattice_of_the_shown_pose_back(core):
+    """After a cancel the engine holds the pre-drag lattice again: the overlay draws the pose's
+    lattice (not the rest lattice), and the next drag starts from the shown pose, not from rest."""
+    from larap_blender import overlay
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.7
+    bpy.ops.larap.solve()
+    rt = core.runtime(obj)
+    assert overlay.lattice_state(obj, rt) == "pose"
+    shown = rt.deformer.lattice_deformed()
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.3, -0.5))
+    assert np.abs(rt.deformer.lattice_deformed() - shown).max() > 0.05
+    session.cancel()
+    assert overlay.lattice_state(obj, rt) == "pose"
+    assert np.array_equal(rt.deformer.lattice_deformed(), shown)
+    # The first step of the next drag starts from the shown pose: a zero move keeps it.
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.0, 0.0))
+    assert np.abs(rt.deformer.lattice_deformed() - shown).max() < 1e-3 * diagonal(rest)
+    session.cancel()
+
+
 def test_confirm_uses_final_weights(core):
     obj, rest, left, right, targets = bar_with_handles(core)
     session = core.PoseSession(obj, 1).begin()

@@ -4,6 +4,7 @@
 #include <larap/errors.h>
 
 #include <Eigen/Geometry>
+#include <limits>
 #include <random>
 
 #include "parallel.h"
@@ -160,3 +161,52 @@ TEST(Deformer, HierarchyRestAndRigid) {
   opt.levels = 0;
   EXPECT_THROW(Deformer(m, opt), InvalidInput);
 }
+
+// A cancelled drag puts the lattice state back: the next solve continues exactly as if the drag
+// had not happened, on every level of a hierarchy; a state of another shape changes nothing.
+class LatticeStateLevels : public ::testing::TestWithParam<int> {};
+
+TEST_P(LatticeStateLevels, PuttingTheStateBackUndoesTheSolvesSince) {
+  const PolygonMesh m = ball();
+  DeformerOptions opt;
+  opt.lattice.cells = 1500;
+  opt.levels = GetParam();
+  const auto idx = spread(m.num_vertices(), 30);
+  RowMatrixX3d A = gather(m.vertices, idx), B = A, A2 = A;
+  A.col(1).array() += 0.3;
+  B.col(0).array() -= 0.5;
+  A2.col(1).array() += 0.35;
+  RowMatrixX3d X(m.num_vertices(), 3), Y(m.num_vertices(), 3);
+
+  Deformer d(m, opt);
+  d.set_handles(idx);
+  d.solve(A.data(), 10, X.data());
+  const std::vector<RowMatrixX3d> state = d.lattice_state();
+  ASSERT_EQ(int(state.size()), d.levels());
+  d.solve(B.data(), 10, X.data());  // the drag
+  d.set_lattice_state(state);       // cancelled
+  EXPECT_EQ((d.lattice_state()[0] - state[0]).cwiseAbs().maxCoeff(), 0.0);
+  d.solve(A2.data(), 5, X.data());
+
+  Deformer e(m, opt);  // no drag at all
+  e.set_handles(idx);
+  e.solve(A.data(), 10, Y.data());
+  e.solve(A2.data(), 5, Y.data());
+  EXPECT_EQ((X - Y).cwiseAbs().maxCoeff(), 0.0);
+
+  // Wrong level count, wrong node count, a NaN: InvalidInput, and the state is kept.
+  const std::vector<RowMatrixX3d> before = d.lattice_state();
+  std::vector<RowMatrixX3d> bad = before;
+  bad.push_back(before[0]);
+  EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
+  bad = before;
+  bad.back().conservativeResize(bad.back().rows() - 1, 3);
+  EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
+  bad = before;
+  bad[0](3, 1) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
+  const std::vector<RowMatrixX3d> after = d.lattice_state();
+  for (size_t l = 0; l < before.size(); ++l) EXPECT_EQ((after[l] - before[l]).cwiseAbs().maxCoeff(), 0.0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Levels, LatticeStateLevels, ::testing::Values(1, 3));

@@ -308,3 +308,37 @@ def test_trilinear_binding_arrays_reproduce_the_trilinear_solve(tube, weights):
     e.set_handles(idx)
     np.testing.assert_array_equal(e.pose_lattice(V[idx] + [0, 0.3, 0], 5), d.lattice_deformed())
     assert np.abs(X - ref).max() < 1e-5 * np.ptp(V, axis=0).max()
+
+
+@pytest.mark.parametrize("levels", [1, 3])
+def test_lattice_state_put_back_undoes_a_drag(tube, device, levels):
+    """A cancelled drag: the state taken before it, put back, makes the next solve the one that
+    would have followed without the drag (CPU: bit for bit), on every level of the hierarchy."""
+    V, F = tube
+    idx, T = bend_setup(V, angle=45.0)
+    T2 = T + [0.0, 0.05, 0.0]
+    drag = T + [0.0, 0.0, 0.8]
+    d = larap.Deformer(V, F, cells=2000, levels=levels, device=device)
+    d.set_handles(idx)
+    d.solve(T, iterations=10)
+    state = d.lattice_state()
+    assert len(state) == d.levels and all(s.shape[1] == 3 for s in state)
+    d.solve(drag, iterations=10)
+    d.set_lattice_state(state)
+    X = d.solve(T2, iterations=5)
+    e = larap.Deformer(V, F, cells=2000, levels=levels, device=device)
+    e.set_handles(idx)
+    e.solve(T, iterations=10)
+    Y = e.solve(T2, iterations=5)
+    assert np.abs(X - Y).max() <= tol(device, 0.0, 1e-5) * diagonal(V)
+
+
+def test_lattice_state_of_another_shape_is_refused(tube):
+    V, F = tube
+    d = larap.Deformer(V, F, cells=2000, levels=2)
+    state = d.lattice_state()
+    for bad in (state[:1], state + [state[0]], [state[0][:-1], state[1]], [state[0] * np.nan, state[1]],
+                [state[0][:, :2], state[1]]):
+        with pytest.raises(ValueError):
+            d.set_lattice_state(bad)
+    assert all(np.array_equal(a, b) for a, b in zip(d.lattice_state(), state))

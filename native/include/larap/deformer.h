@@ -68,6 +68,12 @@ class Deformer {
   void set_gamma(double gamma);
   // Forget the pose: the next solve starts from rest.
   void reset();
+  // The lattice pose of every level (the fine level first, then the hierarchy's coarser ones), and
+  // putting it back: a cancelled drag returns the engine to where the solve before it ended, so the
+  // next solve warm-starts there instead of from rest. set_lattice_state throws InvalidInput (and
+  // changes nothing) unless `state` has one #N by 3 array per level of this Deformer, all finite.
+  std::vector<RowMatrixX3d> lattice_state() const;
+  void set_lattice_state(const std::vector<RowMatrixX3d>& state);
 
   // ---------------------------------------------------------------------------- posing
   // targets: #handles by 3 row-major; out: #V by 3 row-major. Warm-starts from the last pose.

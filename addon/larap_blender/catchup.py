@@ -76,6 +76,9 @@ def catch_up(obj):
     rt = runtime(obj)
     if rt is None or not (rt.needs_catchup or preview.showing(obj)):
         return False
+    from .session import dragging  # (session imports this module)
+    if dragging(obj):  # the drag's confirm or cancel writes or restores the pose key
+        return False
     try:
         if obj.mode == "EDIT":
             raise LarapError("%r is in Edit Mode" % obj.name)

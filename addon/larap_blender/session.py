@@ -9,7 +9,10 @@ preview (preview.py) a step poses only the lattice and the preview draws it; wit
 pose key is written. Confirm evaluates the moved target and writes the final pose of it (one
 pose per set of targets, as Live's catch-up would; when that solve fails, confirm restores as
 cancel does and re-raises); cancel restores the pose key, the target's
-transform and what the pose key was recorded as, bit-exactly, and nothing solves again.
+transform and what the pose key was recorded as, bit-exactly, and the engine's lattice as it was
+when the drag began (when the engine held the shown pose; else it starts from rest, and the
+overlay shows the rest lattice, labelled); nothing solves again. While a drag runs, neither Live
+nor the catch-up (catchup.py) writes its mesh.
 :func:`handle_points` gives the handle vertices in the pose shown (the preview's while it shows the
 mesh), for picking and the overlay.
 """
@@ -168,8 +171,12 @@ class PoseSession:
         rt = ensure_runtime(obj, "fast")
         # The engine's lattice of the shown pose, when it holds it: a cancel puts it back, so the
         # overlay keeps showing the pose's lattice and the next solve starts where this one did.
-        self.engine = rt.deformer
-        self.lattice_state = rt.deformer.lattice_state() if rt.lattice_current and rt.deformer is not None else None
+        self.engine, self.lattice_state = rt.deformer, None
+        if rt.lattice_current and rt.deformer is not None:
+            try:
+                self.lattice_state = rt.deformer.lattice_state()
+            except Exception:  # then a cancel starts the engine from rest, as without it
+                self.lattice_state = None
         self.stored = stored_signature(obj)
         self.wrote = False
         self.key_existed = bool(obj.data.shape_keys and obj.data.shape_keys.key_blocks.get(s.shape_key))
@@ -231,6 +238,7 @@ class PoseSession:
     def _end(self):
         _DRAGGING.discard(self.key)
         self.active = False
+        self.engine = self.lattice_state = None  # an operator that lives on keeps no engine alive
 
     def confirm(self):
         """Write the final pose of the targets where the drag left them (evaluated first, so
@@ -248,8 +256,9 @@ class PoseSession:
         return self.last
 
     def cancel(self):
-        """Bit-exact restore of the pose key, the target and the pose key's record; the preview
-        ends and nothing solves (Live sees the targets it last saw)."""
+        """Bit-exact restore of the pose key, the target and the pose key's record, and the engine's
+        lattice when begin() took it; the preview ends and nothing solves (Live sees the targets
+        it last saw)."""
         if not self.active:
             return
         try:
@@ -274,8 +283,17 @@ class PoseSession:
             rt.pose_version += 1
             rt.target_sig = target_signature(obj)
             if rt.deformer is not None:
-                if self.lattice_state is not None and rt.deformer is self.engine:
-                    rt.deformer.set_lattice_state(self.lattice_state)
-                    rt.lattice_current = True
-                else:
+                if not self._put_lattice_back(rt):
                     rt.deformer.reset()
+
+    def _put_lattice_back(self, rt):
+        """The engine's lattice as it was at begin(), if it was the shown pose's then and the
+        engine is the same one; False (nothing changed) otherwise or if the engine refuses it."""
+        if self.lattice_state is None or rt.deformer is not self.engine:
+            return False
+        try:
+            rt.deformer.set_lattice_state(self.lattice_state)
+        except Exception:
+            return False
+        rt.lattice_current = True
+        return True

@@ -123,11 +123,15 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     final = weights == "final"
     lattice_only = lattice_only and not final and pose.count > 0
     engine_ms = 0.0
+    # Until this solve succeeds the engine's lattice is not the shown pose's (the overlay says so,
+    # and a drag's cancel does not put back what a failed solve left).
+    rt.lattice_current = False
+    rt.lattice_nodes = None
     with engine_errors("Solve failed"):
         if pose.count == 0:
             warnings.append("no usable handles: rest pose written")
             np.copyto(rt.out, rt.rest)
-            rt.lattice_nodes = None
+            d.reset()  # the engine's lattice is the rest pose written
         else:
             rt.set_engine_state(pose, wname, upgrade_settings(s))
             if final:

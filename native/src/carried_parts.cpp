@@ -53,15 +53,14 @@ CarriedParts carried_parts(const Lattice& lat, const std::vector<uint8_t>& has_h
 
   // Links between components: (other component, free component, the free component's nodes at a
   // grid point of the other's), ordered by the other component.
-  std::vector<std::pair<int32_t, int32_t>> comp_pairs;  // (other, free), once per free node
-  comp_pairs.reserve(pairs.size());
-  for (size_t k = 0; k < pairs.size(); ++k) {
-    const auto [i, j] = pairs[k];
-    const std::pair<int32_t, int32_t> link{lat.component[j], lat.component[i]};
-    bool seen = false;  // the same free node with another copy of the same component
-    for (size_t q = k; q-- > 0 && pairs[q].first == i;) seen |= lat.component[pairs[q].second] == link.first;
-    if (!seen) comp_pairs.push_back(link);
-  }
+  std::vector<std::pair<int32_t, int32_t>> node_links;  // (free node, other component), once each
+  node_links.reserve(pairs.size());
+  for (const auto& [i, j] : pairs) node_links.emplace_back(i, lat.component[j]);
+  std::sort(node_links.begin(), node_links.end());
+  node_links.erase(std::unique(node_links.begin(), node_links.end()), node_links.end());
+  std::vector<std::pair<int32_t, int32_t>> comp_pairs;  // (other, free) per free node
+  comp_pairs.reserve(node_links.size());
+  for (const auto& [i, other] : node_links) comp_pairs.emplace_back(other, lat.component[i]);
   std::sort(comp_pairs.begin(), comp_pairs.end());
   std::vector<Link> links;
   for (size_t k = 0; k < comp_pairs.size(); ++k) {

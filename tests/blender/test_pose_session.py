@@ -59,6 +59,78 @@ def test_cancel_puts_the_lattice_of_the_shown_pose_back(core):
     session.cancel()
 
 
+def test_a_solve_without_usable_handles_leaves_the_engine_at_rest(core):
+    """No usable handles: the rest pose is written and the engine's lattice is the rest lattice, so
+    a later drag's cancel puts back that rest lattice, not the pose before the handles went."""
+    from larap_blender import overlay
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.7
+    bpy.ops.larap.solve()
+    rt = core.runtime(obj)
+    for h in obj.larap.handles:
+        h.enabled = False
+    core.solve(obj, weights="final")
+    at_rest = lambda: np.abs(rt.deformer.lattice_deformed() - rt.deformer.lattice_rest()).max() <= 1e-12
+    assert at_rest()
+    for h in obj.larap.handles:
+        h.enabled = True
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.3, 0.0))
+    session.cancel()
+    assert overlay.lattice_state(obj, rt) == "pose"
+    assert at_rest()
+    assert np.abs(coords(obj, "LARAP") - rest).max() == 0.0
+
+
+def test_the_catch_up_waits_for_a_drag(core, gpu_preview):
+    """A catch-up due during a preview drag writes nothing: the drag's cancel leaves the pose key
+    as it was (and its record true)."""
+    from larap_blender import catchup
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    obj.larap.preview = True
+    targets[1].location.z += 0.7
+    bpy.ops.larap.solve()
+    rt = core.runtime(obj)
+    before = coords(obj, "LARAP").copy()
+    session = core.PoseSession(obj, 1).begin()
+    session.update(translation=(0.0, 0.0, 1.0))
+    assert gpu_preview.showing(obj) and not session.wrote and rt.needs_catchup
+    rt.last_move = 0.0  # as if a live move happened more than DELAY ago (a registered timer)
+    catchup._timer()
+    assert np.array_equal(coords(obj, "LARAP"), before)
+    session.cancel()
+    assert np.array_equal(coords(obj, "LARAP"), before)
+
+
+def test_a_failed_catch_up_at_the_drag_start_cancels_to_the_rest_lattice(core, gpu_preview, monkeypatch):
+    """The catch-up at the drag's start fails (the engine left at rest, the mesh showing the old
+    pose key): a cancel does not claim the engine's lattice is the shown pose's."""
+    import larap
+    from larap_blender import handlers, overlay
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    obj.larap.preview = True
+    targets[1].location.z += 0.7
+    bpy.ops.larap.solve()
+    rt = core.runtime(obj)
+    targets[1].location.y += 0.4
+    bpy.context.view_layer.update()
+    handlers.live_update(bpy.context.scene)  # a live move: a lattice-only solve, the preview shows
+    assert gpu_preview.showing(obj) and rt.needs_catchup
+
+    def failing(self, *args, **kwargs):
+        raise RuntimeError("device lost")
+    real = larap.Deformer.solve
+    monkeypatch.setattr(larap.Deformer, "solve", failing)
+    session = core.PoseSession(obj, 1).begin()
+    monkeypatch.setattr(larap.Deformer, "solve", real)
+    assert "catching up failed" in rt.last_error and not rt.lattice_current
+    session.update(translation=(0.0, 0.0, 0.2))
+    session.cancel()
+    assert overlay.lattice_state(obj, rt) == "rest"
+
+
 def test_confirm_uses_final_weights(core):
     obj, rest, left, right, targets = bar_with_handles(core)
     session = core.PoseSession(obj, 1).begin()

@@ -286,3 +286,27 @@ TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
   EXPECT_LE((g.pp - want.pp).norm(), 1e-12);
   EXPECT_NEAR(g.tt, want.tt, 1e-12);
 }
+
+// A ring around finger B of a hand whose fingers A and B are split apart but one component: the
+// ring's nodes glue to B's copies (most octants in common), not to A's at the same grid points,
+// so turning A leaves the ring on the still B (the reviewer's case: 0.019 with octants, 0.137 when
+// gluing to the lowest-numbered copy).
+TEST(CarriedParts, ARingAroundOneOfTwoFingersGluesToThatFinger) {
+  PolygonMesh ring = gen::box({0.8, 0.27, -0.009}, {1.2, 0.51, 0.23});
+  ring.face_indices.resize(16);  // an open band: without the two faces across x
+  ring.face_offsets.resize(5);
+  const PolygonMesh m = gen::concat({gen::box({-0.6, 0.017, 0.021}, {0.1, 0.48, 0.2}),  // palm 0..7
+                                     gen::box({0.013, 0.017, 0.021}, {2.0, 0.2, 0.2}),  // finger A 8..15
+                                     gen::box({0.013, 0.3, 0.021}, {2.0, 0.48, 0.2}),   // finger B 16..23
+                                     ring});                                              // 24..31
+  Deformer d(m, options(WeightKind::Trilinear, 1));
+  ASSERT_EQ(d.lattice().num_components, 2);  // the hand, the ring
+  std::vector<int64_t> still, moved;
+  for (int64_t v = 0; v < 24; ++v) (v >= 8 && v < 16 && m.vertices(v, 0) > 1.0 ? moved : still).push_back(v);
+  d.set_handle_groups({still, moved});
+  const std::vector<double> maps = row_major({lift({0, 0, 0}), lift({0, 0, 0.3})});
+  RowMatrixX3d X(m.num_vertices(), 3);
+  d.solve_transforms(maps.data(), 40, X.data());
+  EXPECT_GT(max_distance(X, m.vertices, 8, 16), 0.25);  // A's tip did move
+  EXPECT_LE(max_distance(X, m.vertices, 24, 32), 0.05);
+}

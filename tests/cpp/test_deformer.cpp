@@ -194,16 +194,19 @@ TEST_P(LatticeStateLevels, PuttingTheStateBackUndoesTheSolvesSince) {
   e.solve(A2.data(), 5, Y.data());
   EXPECT_EQ((X - Y).cwiseAbs().maxCoeff(), 0.0);
 
-  // Wrong level count, wrong node count, a NaN: InvalidInput, and the state is kept.
+  // Wrong level count, wrong node count, a NaN: InvalidInput, and the state is kept (every bad
+  // state starts with a valid but different fine level, which a partial update would keep).
   const std::vector<RowMatrixX3d> before = d.lattice_state();
-  std::vector<RowMatrixX3d> bad = before;
+  std::vector<RowMatrixX3d> moved = before;
+  moved[0].array() += 0.25;
+  std::vector<RowMatrixX3d> bad = moved;
   bad.push_back(before[0]);
   EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
-  bad = before;
+  bad = moved;
   bad.back().conservativeResize(bad.back().rows() - 1, 3);
   EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
-  bad = before;
-  bad[0](3, 1) = std::numeric_limits<double>::quiet_NaN();
+  bad = moved;
+  bad.back()(3, 1) = std::numeric_limits<double>::quiet_NaN();
   EXPECT_THROW(d.set_lattice_state(bad), InvalidInput);
   const std::vector<RowMatrixX3d> after = d.lattice_state();
   for (size_t l = 0; l < before.size(); ++l) EXPECT_EQ((after[l] - before[l]).cwiseAbs().maxCoeff(), 0.0);

@@ -337,8 +337,9 @@ def test_lattice_state_of_another_shape_is_refused(tube):
     V, F = tube
     d = larap.Deformer(V, F, cells=2000, levels=2)
     state = d.lattice_state()
-    for bad in (state[:1], state + [state[0]], [state[0][:-1], state[1]], [state[0] * np.nan, state[1]],
-                [state[0][:, :2], state[1]]):
+    moved = state[0] + 0.25  # valid: a partial update would keep it
+    for bad in ([moved], [moved, state[1], state[0]], [moved, state[1][:-1]], [moved, state[1] * np.nan],
+                [moved, state[1][:, :2]]):
         with pytest.raises(ValueError):
             d.set_lattice_state(bad)
     assert all(np.array_equal(a, b) for a, b in zip(d.lattice_state(), state))

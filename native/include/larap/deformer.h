@@ -71,7 +71,8 @@ class Deformer {
   // The lattice pose of every level (the fine level first, then the hierarchy's coarser ones), and
   // putting it back: a cancelled drag returns the engine to where the solve before it ended, so the
   // next solve warm-starts there instead of from rest. set_lattice_state throws InvalidInput (and
-  // changes nothing) unless `state` has one #N by 3 array per level of this Deformer, all finite.
+  // changes nothing) unless `state` has one #N by 3 array per level of this Deformer, all finite;
+  // the fine level's stencil-shell rows are checked but recomputed from its real nodes.
   std::vector<RowMatrixX3d> lattice_state() const;
   void set_lattice_state(const std::vector<RowMatrixX3d>& state);
 

@@ -313,7 +313,9 @@ def test_trilinear_binding_arrays_reproduce_the_trilinear_solve(tube, weights):
 @pytest.mark.parametrize("levels", [1, 3])
 def test_lattice_state_put_back_undoes_a_drag(tube, device, levels):
     """A cancelled drag: the state taken before it, put back, makes the next solve the one that
-    would have followed without the drag (CPU: bit for bit), on every level of the hierarchy."""
+    would have followed without the drag, on every level of the hierarchy: on the CPU bit for bit;
+    on the device within its run-to-run rounding (the same sequence twice on an H100 differs by up
+    to 1.4e-4 of the diagonal; the state put back 1.4e-4, a reset instead 3.6e-2 and 6.0e-3)."""
     V, F = tube
     idx, T = bend_setup(V, angle=45.0)
     T2 = T + [0.0, 0.05, 0.0]
@@ -330,7 +332,7 @@ def test_lattice_state_put_back_undoes_a_drag(tube, device, levels):
     e.set_handles(idx)
     e.solve(T, iterations=10)
     Y = e.solve(T2, iterations=5)
-    assert np.abs(X - Y).max() <= tol(device, 0.0, 1e-5) * diagonal(V)
+    assert np.abs(X - Y).max() <= tol(device, 0.0, 1e-3) * diagonal(V)
 
 
 def test_lattice_state_of_another_shape_is_refused(tube):

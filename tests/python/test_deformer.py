@@ -105,7 +105,10 @@ def test_bend_keeps_volume_and_round_sections(tube, device):
 
 
 def test_handles_reach_targets_scale_free(tube, device):
-    """The same gamma behaves the same on a tiny and a huge model."""
+    """The same gamma behaves the same on a tiny and a huge model. On the device within 5e-4 of the
+    diagonal: its float solves differ by up to 1.4e-4 between two runs of the same solves (H100,
+    2026-11-23), and this test once measured 1.13e-4 against its earlier bound of 1e-4; a gamma
+    that depended on the scale would move the pose by percents."""
     V, F = tube
     idx, T = bend_setup(V)
     results = []
@@ -114,7 +117,7 @@ def test_handles_reach_targets_scale_free(tube, device):
         d.set_handles(idx)
         X = d.solve(T * scale, iterations=20)
         results.append(X / scale)
-    assert np.abs(results[0] - results[1]).max() < tol(device, 1e-6, 1e-4) * diagonal(V)
+    assert np.abs(results[0] - results[1]).max() < tol(device, 1e-6, 5e-4) * diagonal(V)
 
 
 def test_gamma_is_resolution_independent(tube, device):

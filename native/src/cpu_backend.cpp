@@ -78,8 +78,8 @@ class CpuBackend final : public Backend {
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     M_ = handle_matrix(hs, n);
-    C_ = M_ + glue_matrix(hs, n);  // M and the glue of carried parts
-    A += C_;
+    G_ = glue_matrix(hs, n);  // the glue of carried parts (empty when nothing is carried)
+    A += M_ + G_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();
     llt_->compute(A);
@@ -210,7 +210,8 @@ class CpuBackend final : public Backend {
     double total = 0.0;
     for (double e : node_energy_) total += e;
     const RowMatrixX3d Pc = pose_.topRows(nr_).rowwise() - hs_.origin.transpose();
-    const RowMatrixX3d MP = C_ * Pc;
+    RowMatrixX3d MP = M_ * Pc;
+    if (G_.nonZeros() > 0) MP += G_ * Pc;
     double handles = (Pc.array() * (MP - 2.0 * H_.topRows(nr_)).array()).sum();
     for (double k : K_) handles += k;
     return (total + std::max(handles, 0.0)) * hs_.energy_scale;
@@ -245,7 +246,7 @@ class CpuBackend final : public Backend {
   std::vector<double> node_energy_;
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
-  Eigen::SparseMatrix<double> C_;  // M + the glue of carried parts (the system and the energy)
+  Eigen::SparseMatrix<double> G_;  // mu G^T G, the glue of carried parts (the system and the energy)
   RowMatrixX3d H_;                 // H~ of the current targets
   std::vector<double> K_;          // K~ per component
   bool targets_set_ = false;

@@ -82,16 +82,21 @@ def test_a_solve_without_usable_handles_leaves_the_engine_at_rest(core):
     assert np.abs(coords(obj, "LARAP") - rest).max() == 0.0
 
 
-def test_the_catch_up_waits_for_a_drag(core, gpu_preview):
-    """A catch-up due during a preview drag writes nothing: the drag's cancel leaves the pose key
-    as it was (and its record true)."""
-    from larap_blender import catchup
+def posed_bar_live_preview(core):
+    """The bar with Live and Preview on, its far end raised and solved: (object, targets, runtime)."""
     obj, rest, left, right, targets = bar_with_handles(core)
     obj.larap.live = True
     obj.larap.preview = True
     targets[1].location.z += 0.7
     bpy.ops.larap.solve()
-    rt = core.runtime(obj)
+    return obj, targets, core.runtime(obj)
+
+
+def test_the_catch_up_waits_for_a_drag(core, gpu_preview):
+    """A catch-up due during a preview drag writes nothing: the drag's cancel leaves the pose key
+    as it was (and its record true)."""
+    from larap_blender import catchup
+    obj, targets, rt = posed_bar_live_preview(core)
     before = coords(obj, "LARAP").copy()
     session = core.PoseSession(obj, 1).begin()
     session.update(translation=(0.0, 0.0, 1.0))
@@ -108,12 +113,7 @@ def test_a_failed_catch_up_at_the_drag_start_cancels_to_the_rest_lattice(core, g
     pose key): a cancel does not claim the engine's lattice is the shown pose's."""
     import larap
     from larap_blender import handlers, overlay
-    obj, rest, left, right, targets = bar_with_handles(core)
-    obj.larap.live = True
-    obj.larap.preview = True
-    targets[1].location.z += 0.7
-    bpy.ops.larap.solve()
-    rt = core.runtime(obj)
+    obj, targets, rt = posed_bar_live_preview(core)
     targets[1].location.y += 0.4
     bpy.context.view_layer.update()
     handlers.live_update(bpy.context.scene)  # a live move: a lattice-only solve, the preview shows

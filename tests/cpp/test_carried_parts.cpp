@@ -42,6 +42,19 @@ DeformerOptions options(WeightKind weights, int levels) {
   return opt;
 }
 
+Lattice lattice_of(const PolygonMesh& m) {
+  LatticeOptions lo;
+  lo.cell_size = kH;
+  return Lattice::build(m, lo);
+}
+
+// has_handle for carried_parts: every component of `lat` but `free`.
+std::vector<uint8_t> handled_but(const Lattice& lat, int32_t free) {
+  std::vector<uint8_t> has_handle(size_t(lat.num_components), 1);
+  has_handle[size_t(free)] = 0;
+  return has_handle;
+}
+
 int32_t component_of(const Lattice& lat, int64_t vertex) {
   return lat.component[lat.cell_nodes[lat.vertex_cell[vertex]][0]];
 }
@@ -76,9 +89,7 @@ double max_distance(const RowMatrixX3d& X, const RowMatrixX3d& Y, int64_t b, int
 
 TEST(CarriedParts, ChainsFromTheHandledPartAndFarPartsStayAnchored) {
   const PolygonMesh m = scene();
-  LatticeOptions lo;
-  lo.cell_size = kH;
-  const Lattice lat = Lattice::build(m, lo);
+  const Lattice lat = lattice_of(m);
   const int32_t a = component_of(lat, kA), b = component_of(lat, kB), c = component_of(lat, kC),
                 e = component_of(lat, kE);
   ASSERT_EQ(lat.num_components, 4);  // the tenth of a cell separates the bars
@@ -156,14 +167,10 @@ INSTANTIATE_TEST_SUITE_P(Weights, CarriedPose,
 // bar never drags the other through it.
 TEST(CarriedParts, APartBetweenTwoHandledPartsCouplesNothing) {
   const PolygonMesh m = gen::concat({bar(0.013, 1.011), bar(1.011 + 0.1 * kH, 1.49), bar(1.49 + 0.1 * kH, 2.52)});
-  LatticeOptions lo;
-  lo.cell_size = kH;
-  const Lattice lat = Lattice::build(m, lo);
+  const Lattice lat = lattice_of(m);
   ASSERT_EQ(lat.num_components, 3);
   const int32_t left = component_of(lat, 0), mid = component_of(lat, 8), right = component_of(lat, 16);
-  std::vector<uint8_t> has_handle(3, 1);
-  has_handle[size_t(mid)] = 0;
-  const CarriedParts cp = carried_parts(lat, has_handle);
+  const CarriedParts cp = carried_parts(lat, handled_but(lat, mid));
   ASSERT_TRUE(cp.carrier[size_t(mid)] == left || cp.carrier[size_t(mid)] == right);
   for (const auto& [i, j] : cp.glue) EXPECT_EQ(lat.component[j], cp.carrier[size_t(mid)]);
 
@@ -185,14 +192,10 @@ TEST(CarriedParts, APartBetweenTwoHandledPartsCouplesNothing) {
 TEST(CarriedParts, ThePartSharingMostNodesCarries) {
   const PolygonMesh m = gen::concat({bar(0.013, 2.011), gen::box({0.51, 0.017, 1.023 + 0.1 * kH}, {2.49, 1.019, 1.21}),
                                      bar(2.49 + 0.1 * kH, 4.02)});
-  LatticeOptions lo;
-  lo.cell_size = kH;
-  const Lattice lat = Lattice::build(m, lo);
+  const Lattice lat = lattice_of(m);
   ASSERT_EQ(lat.num_components, 3);
   const int32_t first = component_of(lat, 0), plate = component_of(lat, 8), second = component_of(lat, 16);
-  std::vector<uint8_t> has_handle(3, 1);
-  has_handle[size_t(plate)] = 0;
-  const CarriedParts cp = carried_parts(lat, has_handle);
+  const CarriedParts cp = carried_parts(lat, handled_but(lat, plate));
   EXPECT_EQ(cp.carrier[size_t(plate)], first);
   int64_t with_second = 0;  // the plate does share nodes with the second bar
   for (int64_t i = 0; i < lat.num_real_nodes(); ++i)
@@ -213,9 +216,7 @@ TEST(CarriedParts, ThePartSharingMostNodesCarries) {
 // carried: it stays at rest.
 TEST(CarriedParts, APartTouchedAlongASliverStays) {
   const PolygonMesh m = gen::concat({bar(0.013, 1.011), gen::box({-3.0, -3.0, -0.6}, {4.0, 4.0, 0.021 - 0.1 * kH})});
-  LatticeOptions lo;
-  lo.cell_size = kH;
-  const Lattice lat = Lattice::build(m, lo);
+  const Lattice lat = lattice_of(m);
   ASSERT_EQ(lat.num_components, 2);
   const int32_t foot = component_of(lat, 0), floor = component_of(lat, 8);
   std::vector<uint8_t> has_handle(2, 0);
@@ -230,9 +231,7 @@ TEST(CarriedParts, APartTouchedAlongASliverStays) {
 // them, even where it is stretched.
 TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
   const PolygonMesh m = scene();
-  LatticeOptions lo;
-  lo.cell_size = kH;
-  const Lattice lat = Lattice::build(m, lo);
+  const Lattice lat = lattice_of(m);
   std::vector<int32_t> cells(8);
   RowMatrixX3d rest(8, 3);
   HandleSpec spec;

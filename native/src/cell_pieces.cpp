@@ -125,8 +125,11 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
   }, 4);
 
-  // Air: flood fill through the candidates from faces that border an empty or outside cell.
-  std::vector<int64_t> stack;
+  // Air: flood fill through the candidates from faces that border an empty or outside cell. Each
+  // cell floods its own voxels in parallel; then, in rounds, air on a face of a cell that gained
+  // some seeds the voxel across it in the neighbouring cell, until no cell gains any. The air is
+  // the set of non-surface voxels connected to a seed, however it is reached, so it does not
+  // depend on the order.
   auto face_voxel = [&](int axis, int layer, int u, int w) {
     int c[3];
     c[axis] = layer;
@@ -134,8 +137,40 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     c[(axis + 2) % 3] = w;
     return vindex(c[0], c[1], c[2]);
   };
-  for (int64_t b = 0; b < nb; ++b) {
+  std::vector<int64_t> across(static_cast<size_t>(6 * nb));  // the analysed neighbour over each face, or -1
+  parallel_for(nb, [&](int64_t b) {
     const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
+    for (int f = 0; f < 6; ++f) {
+      Eigen::Vector3i Y = X;
+      Y[f / 2] += f % 2 ? 1 : -1;
+      across[size_t(6 * b + f)] = block_of_cell(Y);
+    }
+  }, 256);
+  std::vector<std::vector<int32_t>> seeds(static_cast<size_t>(nb));  // unflooded air, per cell
+  auto flood = [&](int64_t b) {  // from the cell's seeds, inside the cell
+    std::vector<int32_t>& stack = seeds[size_t(b)];
+    uint8_t* v = vox.data() + b * k3;
+    while (!stack.empty()) {
+      const int32_t vi = stack.back();
+      stack.pop_back();
+      const int c[3] = {vi % k, (vi / k) % k, vi / (k * k)};
+      for (int f = 0; f < 6; ++f) {
+        int n[3] = {c[0], c[1], c[2]};
+        n[f / 2] += f % 2 ? 1 : -1;
+        if (n[f / 2] < 0 || n[f / 2] >= k) continue;
+        const int32_t ni = int32_t(vindex(n[0], n[1], n[2]));
+        if (v[ni] == 0) {
+          __atomic_store_n(&v[ni], uint8_t(2), __ATOMIC_RELAXED);  // neighbours read the faces
+          stack.push_back(ni);
+        }
+      }
+    }
+    std::vector<int32_t>().swap(stack);
+  };
+  std::vector<uint8_t> gained(static_cast<size_t>(nb), 0);
+  parallel_for(nb, [&](int64_t b) {
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
+    uint8_t* v = vox.data() + b * k3;
     for (int f = 0; f < 6; ++f) {
       const int axis = f / 2, side = f % 2;
       Eigen::Vector3i Y = X;
@@ -144,36 +179,51 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       for (int w = 0; w < k; ++w)
         for (int u = 0; u < k; ++u) {
           const int64_t vi = face_voxel(axis, side ? k - 1 : 0, u, w);
-          if (vox[b * k3 + vi] == 0) {
-            vox[b * k3 + vi] = 2;
-            stack.push_back(b * k3 + vi);
+          if (v[vi] == 0) {
+            v[vi] = 2;
+            seeds[size_t(b)].push_back(int32_t(vi));
           }
         }
     }
-  }
-  while (!stack.empty()) {
-    const int64_t id = stack.back();
-    stack.pop_back();
-    const int64_t b = id / k3, vi = id % k3;
-    const int c[3] = {int(vi % k), int((vi / k) % k), int(vi / (int64_t(k) * k))};
-    for (int f = 0; f < 6; ++f) {
-      const int axis = f / 2, step = f % 2 ? 1 : -1;
-      int n[3] = {c[0], c[1], c[2]};
-      n[axis] += step;
-      int64_t nbk = b;
-      if (n[axis] < 0 || n[axis] >= k) {
-        Eigen::Vector3i Y = g.coords(surf_cells[cand_surf[b]]);
-        Y[axis] += step;
-        nbk = block_of_cell(Y);
-        if (nbk < 0) continue;
-        n[axis] = (n[axis] + k) % k;
+    gained[size_t(b)] = !seeds[size_t(b)].empty();
+    flood(b);
+  }, 4);
+  std::vector<int64_t> changed = parallel_select(nb, [&](int64_t b) { return gained[size_t(b)] != 0; }, 4096);
+  while (!changed.empty()) {
+    // Cells next to a changed one take the air across their shared face (each cell writes only
+    // its own voxels and seeds).
+    std::fill(gained.begin(), gained.end(), 0);
+    std::vector<int64_t> touched;
+    for (int64_t b : changed)
+      for (int f = 0; f < 6; ++f)
+        if (across[size_t(6 * b + f)] >= 0) touched.push_back(across[size_t(6 * b + f)]);
+    std::sort(touched.begin(), touched.end());
+    touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+    parallel_for(int64_t(touched.size()), [&](int64_t i) {
+      const int64_t b = touched[size_t(i)];
+      uint8_t* v = vox.data() + b * k3;
+      for (int f = 0; f < 6; ++f) {
+        const int64_t y = across[size_t(6 * b + f)];
+        if (y < 0) continue;
+        const int axis = f / 2, side = f % 2;
+        const uint8_t* w = vox.data() + y * k3;
+        for (int q = 0; q < k; ++q)
+          for (int u = 0; u < k; ++u) {
+            const int64_t mine = face_voxel(axis, side ? k - 1 : 0, u, q);
+            // The neighbour may be flooding in this round: what it has not yet written, it
+            // passes on in the next (it has then gained air).
+            if (v[mine] == 0 && __atomic_load_n(&w[face_voxel(axis, side ? 0 : k - 1, u, q)], __ATOMIC_RELAXED) == 2) {
+              __atomic_store_n(&v[mine], uint8_t(2), __ATOMIC_RELAXED);
+              seeds[size_t(b)].push_back(int32_t(mine));
+            }
+          }
       }
-      const int64_t nid = nbk * k3 + vindex(n[0], n[1], n[2]);
-      if (vox[nid] == 0) {
-        vox[nid] = 2;
-        stack.push_back(nid);
-      }
-    }
+      gained[size_t(b)] = !seeds[size_t(b)].empty();
+      flood(b);
+    }, 4);
+    changed.clear();
+    for (int64_t b : touched)
+      if (gained[size_t(b)]) changed.push_back(b);
   }
 
   // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one

@@ -9,7 +9,6 @@ difference. Used to show that a change meant to be faster builds the same lattic
 
 Run: /usr/bin/python3 scripts/check_split_identity.py --other CHECKOUT [--quick]"""
 import argparse
-import hashlib
 import json
 import os
 import subprocess

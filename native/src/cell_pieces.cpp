@@ -127,9 +127,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
 
   // Air: flood fill through the candidates from faces that border an empty or outside cell. Each
   // cell floods its own voxels in parallel; then, in rounds, air on a face of a cell that gained
-  // some seeds the voxel across it in the neighbouring cell, until no cell gains any. The air is
-  // the set of non-surface voxels connected to a seed, however it is reached, so it does not
-  // depend on the order.
+  // some seeds the voxel across it in the neighbouring cell, until no cell gains any. A cell reads
+  // its neighbours' faces while they may be flooding (relaxed atomics), so how many rounds it
+  // takes, and which cell gains air in which, depend on the schedule; the result does not: the
+  // air is the set of non-surface voxels connected to a seed, however it is reached.
   auto face_voxel = [&](int axis, int layer, int u, int w) {
     int c[3];
     c[axis] = layer;
@@ -192,7 +193,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   while (!changed.empty()) {
     // Cells next to a changed one take the air across their shared face (each cell writes only
     // its own voxels and seeds).
-    std::fill(gained.begin(), gained.end(), 0);
     std::vector<int64_t> touched;
     for (int64_t b : changed)
       for (int f = 0; f < 6; ++f)

@@ -350,6 +350,36 @@ TEST(CellPieces, SameLatticeWhateverTheThreadCount) {
   set_num_threads(before);
 }
 
+TEST(CellPieces, AirTravelsAlongAChannelThroughManyCells) {
+  // Two slabs of separate parts 0.1 cells apart (two voxels of air at k = 24), walled along
+  // their sides and at one end by boxes of their own, L cells long in x: the channel between the
+  // slabs opens to the outside only at its other end, and its middle cells (y = 3, 4) hold only
+  // the two slabs. Air that reaches the channel's far end separates the slabs in every middle cell
+  // but the capped one. Open at the high end, the air travels against the order of the cells
+  // (one cell per round of the parallel flood); open at the low end, with it.
+  const int L = 12;
+  const double x0 = 1.05, x1 = L + 0.95;
+  const int before = num_threads();
+  for (int threads : {1, 2})
+    for (bool open_high : {false, true}) {
+      set_num_threads(threads);
+      const PolygonMesh cap = open_high ? gen::box({x0, 0.55, 1.2}, {x0 + 0.15, 3.45, 1.8})
+                                        : gen::box({x1 - 0.15, 0.55, 1.2}, {x1, 3.45, 1.8});
+      const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({x0, 0.55, 1.2}, {x1, 3.45, 1.45}),
+                                         gen::box({x0, 0.55, 1.55}, {x1, 3.45, 1.8}),
+                                         gen::box({x0, 0.55, 1.2}, {x1, 0.7, 1.8}),
+                                         gen::box({x0, 3.3, 1.2}, {x1, 3.45, 1.8}), cap});
+      const Lattice lat = build(m, 1.0, true);
+      const int capped = open_high ? 3 : L + 2;
+      for (int x = 3; x <= L + 2; ++x)
+        for (int y : {3, 4})
+          EXPECT_EQ(lat.cell_copies(x, y, 3), x == capped ? 1 : 2)
+              << "cell (" << x << ", " << y << ", 3), open at the " << (open_high ? "high" : "low") << " end, "
+              << threads << " threads";
+    }
+  set_num_threads(before);
+}
+
 TEST(CellPieces, SplitCopiesKeepTheirPrivateCorners) {
   // Two slabs 0.1 apart inside one column of cells, joined by a block in the cell below: the
   // column's cells are split in two copies each. The slabs meet only through the block, so the

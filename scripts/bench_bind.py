@@ -2,8 +2,8 @@
 """Bind cost where cells split: `Deformer(V, F)` (lattice, cell splitting, binding; no handles, so
 nothing else) on models whose cells are analysed, this tree against another checkout, each bind
 in its own process, the two trees alternating, best of 3 binds per process. The models: a long
-thin box of large triangles, rows of loose boxes 0.05 apart, the character of larap.shapes, and
-the public meshes of ../shared when present. Prints a table (seconds, and this tree's over the
+thin box of large triangles, rows of loose boxes 0.05 apart, the character of larap.shapes, a
+1M-vertex torus, and the public meshes of ../shared when present. Prints a table (seconds, and this tree's over the
 other's) and writes it as JSON with the machine.
 
 Run: /usr/bin/python3 scripts/bench_bind.py --other CHECKOUT [--rounds 2] [--out FILE]"""
@@ -36,6 +36,8 @@ elif name.startswith("boxes "):
     kw = {"cell_size": 0.5}
 elif name == "character":
     V, F, _ = shapes.character()
+elif name == "torus":
+    V, F = shapes.torus(1.0, 0.35, 1414, 707)
 else:
     V, F = larap.load_mesh(name)
 binds = []
@@ -47,7 +49,8 @@ print(json.dumps({"vertices": len(V), "cells": d.num_cells, "nodes": d.num_nodes
 MODELS = [("thin box", "a 237 x 0.9 x 0.9 box, 386 vertices, cell 0.5"),
           ("boxes 250", "250 boxes 0.9 wide, 0.05 apart, cell 0.5"),
           ("boxes 2000", "2,000 boxes 0.9 wide, 0.05 apart, cell 0.5"),
-          ("character", "larap.shapes.character(), default lattice")]
+          ("character", "larap.shapes.character(), default lattice"),
+          ("torus", "torus of 1M vertices, default lattice")]
 
 
 def run(checkout, model):

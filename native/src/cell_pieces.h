@@ -3,9 +3,9 @@
 // Bao and Fedkiw 2004; Nesme et al. 2009). Internal to the lattice builder.
 //
 // 1. Candidates. Only cells that may hold several pieces are analysed:
-//    - a surface cell whose overlapping triangles form more than one connected component through
-//      shared vertices (counted inside the cell: a fork's two tines joined far away are two;
-//      found by surface_patches.h);
+//    - a surface cell whose overlapping triangles form more than one connected component where
+//      they meet inside the cell (a fork's two tines joined far away are two; found by
+//      surface_patches.h);
 //    - the non-candidate kept cells around a grid point are about to share that point's node; if
 //      their surfaces do not connect within the 2x2x2 block (no triangle overlaps two of them and
 //      no inside cell joins them), the surface cells among them are analysed too. Repeated until

@@ -180,6 +180,8 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   std::vector<std::vector<Crossing>> found(static_cast<size_t>(nchunks));
   parallel_for(nchunks, [&](int64_t ci) {
     std::vector<Crossing>& out = found[ci];
+    std::vector<std::pair<int32_t, Eigen::Vector3i>> seen;  // the surface cells a triangle overlaps
+    std::vector<uint8_t> in_range;
     const int64_t t1 = std::min(nt, (ci + 1) * chunk);
     for (int64_t t = ci * chunk; t < t1; ++t) {
       const Eigen::Vector3i& tri = tris[t];
@@ -203,8 +205,7 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
       } else {
         plain_range(t, c0, c1);
       }
-      std::array<std::pair<int32_t, Eigen::Vector3i>, 8> seen;
-      int nseen = 0;
+      seen.clear();
       for (int z = c0.z(); z <= c1.z(); ++z)
         for (int y = c0.y(); y <= c1.y(); ++y)
           for (int x = c0.x(); x <= c1.x(); ++x) {
@@ -216,18 +217,36 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
             // A one-cell range overlaps without a test, as does a cell holding a vertex.
             if (c0 != c1 && !inner && !overlaps(t, x, y, z)) continue;
             out.push_back({8 * uint32_t(s) + inner, int32_t(t)});
-            // A triangle over more than 8 cells links its first 8 (its other cells see it
-            // through their own overlaps with their neighbours).
-            if (nseen < 8) seen[nseen++] = {s, Eigen::Vector3i(x, y, z)};
+            seen.push_back({s, Eigen::Vector3i(x, y, z)});
           }
-      for (int i = 0; i < nseen; ++i)
-        for (int j = 0; j < nseen; ++j) {
-          if (i == j) continue;
-          const Eigen::Vector3i o = seen[j].second - seen[i].second;
-          if (o.cwiseAbs().maxCoeff() > 1) continue;
-          const uint32_t bit = 1u << offset_bit(o);
-          if (!(__atomic_load_n(&sp.shares[seen[i].first], __ATOMIC_RELAXED) & bit))
-            __atomic_fetch_or(&sp.shares[seen[i].first], bit, __ATOMIC_RELAXED);
+      // Every two neighbouring cells the triangle overlaps share it.
+      auto share = [&](int32_t s, const Eigen::Vector3i& o) {
+        const uint32_t bit = 1u << offset_bit(o);
+        if (!(__atomic_load_n(&sp.shares[s], __ATOMIC_RELAXED) & bit)) __atomic_fetch_or(&sp.shares[s], bit, __ATOMIC_RELAXED);
+      };
+      if (seen.size() <= 8) {  // every pair
+        for (const auto& [si, ci] : seen)
+          for (const auto& [sj, cj] : seen) {
+            const Eigen::Vector3i o = cj - ci;
+            if (si != sj && o.cwiseAbs().maxCoeff() <= 1) share(si, o);
+          }
+        continue;
+      }
+      // A large triangle: its cells marked in a map of its cell range (which the loop above has
+      // just walked), each linked to its marked neighbours.
+      const Eigen::Vector3i ext = c1 - c0 + Eigen::Vector3i::Ones();
+      auto at = [&](const Eigen::Vector3i& c) {
+        const Eigen::Vector3i r = c - c0;
+        return size_t(r.x() + int64_t(ext.x()) * (r.y() + int64_t(ext.y()) * r.z()));
+      };
+      in_range.assign(size_t(int64_t(ext.x()) * ext.y() * ext.z()), 0);
+      for (const auto& sc : seen) in_range[at(sc.second)] = 1;
+      for (const auto& [si, ci] : seen)
+        for (int o = 0; o < 27; ++o) {
+          const Eigen::Vector3i d(o % 3 - 1, (o / 3) % 3 - 1, o / 9 - 1);
+          const Eigen::Vector3i cj = ci + d;
+          if (o == 13 || (cj.array() < c0.array()).any() || (cj.array() > c1.array()).any()) continue;
+          if (in_range[at(cj)]) share(si, d);
         }
     }
   }, 1);
@@ -262,8 +281,12 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
     std::vector<int32_t> fill(root_offsets.begin(), root_offsets.end() - 1);
     for (int64_t v : all_roots) roots[size_t(fill[code[v]]++)] = int32_t(v);
   }
-  // Per cell: its classes and the vertices of its crossing triangles (a vertex inside the cell
-  // stands for its class), joined by the crossing triangles.
+  // Per cell: its classes and its crossing triangles, joined where they meet inside the cell (the
+  // closed box, as the overlap test): a crossing triangle joins the class of each of its vertices
+  // inside the cell, any other vertex of it in the box (shared with a triangle that has it too),
+  // and any of its edges that overlaps the box (shared with the triangle on its other side).
+  // Triangles that meet only beyond the cell (a fork's two tines joined far away, a coarse
+  // mesh's two sides joined at a vertex outside) are two patches.
   parallel_for(ns, [&](int64_t s) {
     const int32_t r0 = root_offsets[s], r1 = root_offsets[s + 1];
     const int32_t q0 = sp.crossing_offsets[s], q1 = sp.crossing_offsets[s + 1];
@@ -271,26 +294,43 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
       sp.several[s] = r1 - r0 > 1;
       return;
     }
+    const Eigen::Vector3d centre = origin + h * (cell_coords[s].cast<double>() + Eigen::Vector3d::Constant(0.5));
+    auto in_box = [&](int32_t v) { return ((V.row(v).transpose() - centre).cwiseAbs().array() <= half.array()).all(); };
     thread_local SmallSets local;
-    local.reset(size_t(3 * (q1 - q0) + (r1 - r0)));
-    auto key = [&](int32_t q, int k) {
-      const int32_t v = tris[sp.crossing[q]][k];
-      return (crossing_inner[q] >> k) & 1 ? sets.parent[v] : v;
-    };
+    thread_local std::vector<std::pair<uint64_t, int32_t>> edges;  // (edge, its triangle's key)
+    local.reset(size_t(4 * (q1 - q0) + (r1 - r0)));
+    edges.clear();
+    // Keys: a vertex id (its class root for a vertex inside the cell), or -2 - (q - q0) for
+    // crossing triangle q.
     for (int32_t q = q0; q < q1; ++q) {
       // The crossing triangles of a cell lie scattered over the triangle array.
       if (q + 16 < q1) __builtin_prefetch(&tris[sp.crossing[q + 16]]);
       if (q + 8 < q1)
         for (int k = 0; k < 3; ++k)
           if ((crossing_inner[q + 8] >> k) & 1) __builtin_prefetch(&sets.parent[tris[sp.crossing[q + 8]][k]]);
-      const int32_t k0 = key(q, 0);
-      local.unite(k0, key(q, 1));
-      local.unite(k0, key(q, 2));
+      const Eigen::Vector3i& t = tris[sp.crossing[q]];
+      const int32_t me = -2 - (q - q0);
+      const uint8_t inner = crossing_inner[q];
+      local.find(me);  // a triangle meeting no other in the cell is a patch of its own
+      for (int k = 0; k < 3; ++k) {
+        if ((inner >> k) & 1) local.unite(me, sets.parent[t[k]]);
+        else if (in_box(t[k])) local.unite(me, t[k]);
+      }
+      for (int k = 0; k < 3; ++k) {
+        const int32_t a = t[k], b = t[(k + 1) % 3];
+        if (((inner >> k) & 1) || ((inner >> ((k + 1) % 3)) & 1)) continue;  // joined through that vertex
+        const Eigen::Vector3d pa = V.row(a), pb = V.row(b);
+        if (!geometry::triangle_box_overlap(centre, half, pa, pb, pb)) continue;  // the edge as a segment
+        edges.emplace_back(uint64_t(uint32_t(std::min(a, b))) << 32 | uint32_t(std::max(a, b)), me);
+      }
     }
-    const int32_t first = r1 > r0 ? local.find(roots[r0]) : local.find(key(q0, 0));
+    std::sort(edges.begin(), edges.end());
+    for (size_t i = 1; i < edges.size(); ++i)
+      if (edges[i].first == edges[i - 1].first) local.unite(edges[i].second, edges[i - 1].second);
+    const int32_t first = r1 > r0 ? local.find(roots[r0]) : local.find(-2);
     bool more = false;
     for (int32_t r = r0 + 1; r < r1 && !more; ++r) more = local.find(roots[r]) != first;
-    for (int32_t q = q0; q < q1 && !more; ++q) more = local.find(key(q, 0)) != first;
+    for (int32_t q = q0; q < q1 && !more; ++q) more = local.find(-2 - (q - q0)) != first;
     sp.several[s] = more;
   }, 16);
   return sp;

@@ -1,8 +1,12 @@
 // The surface cells of the lattice grid and the patches of the surface inside each: which
 // triangles overlap which surface cell, which neighbouring surface cells share a triangle, and
 // which cells hold more than one patch (the triangles overlapping the cell form several connected
-// components through shared vertices, counted inside the cell: a fork's two tines joined far away
-// are two). Internal to the lattice builder: cell_pieces.cpp picks its candidate cells from it.
+// components where they meet inside the cell: at a shared vertex in the cell's closed box or along
+// a shared edge that overlaps it; a fork's two tines joined far away are two, and so are a coarse
+// mesh's two sheets whose triangles share only a vertex beyond the cell). Any two neighbouring
+// cells one triangle overlaps share it, however many cells it spans. The patches are a property
+// of the surface in the cell, not of how it is cut into triangles. Internal to the lattice
+// builder: cell_pieces.cpp picks its candidate cells from it.
 //
 // A fine mesh has hundreds of triangles per surface cell, so this is the costly part of cell
 // splitting; it avoids per-cell triangle lists:
@@ -13,9 +17,11 @@
 //   found once per cell they overlap; a cell holding one of their vertices needs no overlap test.
 // - Patches: the vertices of the triangles inside one cell are joined globally (a concurrent
 //   union-find whose classes each stay in one cell); a cell's own analysis then walks only its
-//   crossing triangles, over these classes and the vertices of its crossing triangles.
+//   crossing triangles: each joins the classes of its vertices inside the cell, its other
+//   vertices that lie in the cell's box, and the crossing triangles across its edges that
+//   overlap the box.
 // The result is the same as testing every triangle against every cell of its range and joining
-// each cell's triangles through their vertices; tests/cpp/test_cell_pieces.cpp checks that.
+// each cell's triangles where they meet in the cell; tests/cpp/test_cell_pieces.cpp checks that.
 #pragma once
 #include <larap/mesh.h>
 

@@ -7,12 +7,14 @@
 #include <larap/lattice.h>
 
 #include <algorithm>
+#include <array>
 #include <numeric>
 #include <random>
 #include <set>
 
 #include "cell_pieces.h"
 #include "geometry.h"
+#include "mesh_parts.h"
 #include "parallel.h"
 #include "surface_patches.h"
 #include "test_meshes.h"
@@ -24,7 +26,9 @@ namespace {
 
 // --------------------------------------------------------------------- the plain reference
 // Every triangle against every cell of its range (one-cell ranges without a test, as the builder
-// does), each cell's triangles joined through their vertices.
+// does); any two neighbouring cells a triangle overlaps share it; a cell's triangles joined where
+// they meet inside it: at a shared vertex in the cell's closed box, or along a shared edge that
+// overlaps the box.
 struct Reference {
   std::vector<std::vector<int32_t>> tris;  // per surface cell, ascending
   std::vector<uint32_t> shares;
@@ -36,6 +40,7 @@ Reference reference(const Grid& g, const SurfacePatches& sp, const RowMatrixX3d&
   const size_t ns = sp.cells.size();
   Reference r{std::vector<std::vector<int32_t>>(ns), std::vector<uint32_t>(ns, 0), std::vector<uint8_t>(ns, 0)};
   const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * g.h * (1.0 + 1e-9));
+  std::vector<Eigen::Vector3d> centres(ns);
   for (size_t t = 0; t < tris.size(); ++t) {
     const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
     const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
@@ -53,7 +58,8 @@ Reference reference(const Grid& g, const SurfacePatches& sp, const RowMatrixX3d&
           const Eigen::Vector3d centre = g.origin + g.h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
           if (c0 != c1 && !geometry::triangle_box_overlap(centre, half, a, b, c)) continue;
           r.tris[size_t(s)].push_back(int32_t(t));
-          if (seen.size() < 8) seen.emplace_back(s, Eigen::Vector3i(x, y, z));
+          centres[size_t(s)] = centre;
+          seen.emplace_back(s, Eigen::Vector3i(x, y, z));
         }
     for (const auto& [si, ci] : seen)
       for (const auto& [sj, cj] : seen) {
@@ -61,22 +67,34 @@ Reference reference(const Grid& g, const SurfacePatches& sp, const RowMatrixX3d&
         if (si != sj && o.cwiseAbs().maxCoeff() <= 1) r.shares[size_t(si)] |= 1u << offset_bit(o);
       }
   }
-  std::vector<int32_t> parent(size_t(V.rows()));
   for (size_t s = 0; s < ns; ++s) {
     const auto& list = r.tris[s];
-    for (int32_t t : list)
-      for (int k = 0; k < 3; ++k) parent[size_t(tris[t][k])] = tris[t][k];
-    auto find = [&](int32_t x) {
+    const Eigen::Vector3d& centre = centres[s];
+    std::vector<int> parent(list.size());
+    std::iota(parent.begin(), parent.end(), 0);
+    auto find = [&](int x) {
       while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
       return x;
     };
-    for (int32_t t : list) {
-      parent[size_t(find(tris[t][1]))] = find(tris[t][0]);
-      parent[size_t(find(tris[t][2]))] = find(tris[t][0]);
-    }
-    std::set<int32_t> roots;
-    for (int32_t t : list) roots.insert(find(tris[t][0]));
-    r.several[s] = roots.size() > 1;
+    for (size_t i = 0; i < list.size(); ++i)
+      for (size_t j = i + 1; j < list.size(); ++j) {
+        std::vector<int32_t> common;
+        for (int p = 0; p < 3; ++p)
+          for (int q = 0; q < 3; ++q)
+            if (tris[list[i]][p] == tris[list[j]][q]) common.push_back(tris[list[i]][p]);
+        bool meet = false;
+        for (int32_t v : common)
+          meet = meet || ((V.row(v).transpose() - centre).cwiseAbs().array() <= half.array()).all();
+        for (size_t p = 0; p < common.size(); ++p)
+          for (size_t q = p + 1; q < common.size(); ++q) {
+            const Eigen::Vector3d pa = V.row(common[p]), pb = V.row(common[q]);
+            meet = meet || geometry::triangle_box_overlap(centre, half, pa, pb, pb);
+          }
+        if (meet) parent[size_t(find(int(i)))] = find(int(j));
+      }
+    int roots = 0;
+    for (size_t i = 0; i < list.size(); ++i) roots += find(int(i)) == int(i);
+    r.several[s] = roots > 1;
   }
   return r;
 }
@@ -182,6 +200,43 @@ TEST(SurfacePatches, SameAsEveryTriangleAgainstEveryCell) {
   PolygonMesh far = gen::sphere({0, 0, 0}, 1.0, 12, 24);
   far.vertices.col(0).array() += 3e6 * 0.2;
   expect_same_patches(far, 0.2);
+}
+
+TEST(SurfacePatches, LargeTrianglesMeetingInsideACellAreOnePatch) {
+  // A box of 12 triangles, 60 cells long and 1.8 cells thick: each of its cells holds pieces of
+  // two or three faces whose shared vertices lie cells away, but which meet along the box's
+  // edges inside the cell. No cell holds two patches, every two neighbouring cells share a
+  // triangle (however many cells it spans), so no cell is analysed: the plain lattice, unweighted.
+  const PolygonMesh m = gen::box({0.05, 0.55, 0.55}, {29.95, 1.45, 1.45});
+  const double h = 0.5;
+  const std::vector<Eigen::Vector3i> tris = triangulate(m);
+  const Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(),
+                          m.vertices.colwise().maxCoeff().transpose(), h, int64_t(1) << 32);
+  const CellPieces pieces = find_cell_pieces(g.origin, g.h, g.dims, g.marks, m.vertices, tris, mesh_parts(m),
+                                             g.vertex_cells, 24);
+  EXPECT_EQ(pieces.cells.size(), 0u);
+  expect_same_lattice(build(m, h, true), build(m, h, false));
+}
+
+TEST(SurfacePatches, LargeTrianglesMeetingOnlyBeyondTheCellAreTwoPatches) {
+  // A wedge of four large triangles in one row of cells (z in [2, 3)): two sheets that share
+  // their fold at x = 12.95 and open to 0.6 cells apart at x = 1.05. Inside a cell of the row the
+  // sheets do not meet (only at the fold, cells away), so the cell holds two patches and, where
+  // the air between the sheets reaches, two pieces: the cells from x = 1 to 9, where the sheets
+  // are 0.2 to 0.6 cells apart, are split in two.
+  PolygonMesh wedge;
+  wedge.vertices.resize(6, 3);
+  wedge.vertices << 1.05, 1.1, 2.05,  // lower sheet at z = 2.05
+      12.95, 1.1, 2.05, 12.95, 2.9, 2.05, 1.05, 2.9, 2.05,
+      1.05, 1.1, 2.65, 1.05, 2.9, 2.65;  // the upper sheet's open end at z = 2.65
+  wedge.face_offsets = {0};
+  for (const auto& t : {std::array<int, 3>{0, 1, 2}, {0, 2, 3}, {1, 4, 2}, {2, 4, 5}}) {
+    wedge.face_indices.insert(wedge.face_indices.end(), t.begin(), t.end());
+    wedge.face_offsets.push_back(int64_t(wedge.face_indices.size()));
+  }
+  const Lattice lat = build(gen::concat({gen::point({0, 0, 0}), wedge}), 1.0, true);
+  for (int x = 3; x <= 10; ++x)  // grid index = coordinate + 2
+    for (int y : {3, 4}) EXPECT_EQ(lat.cell_copies(x, y, 4), 2) << "cell (" << x << ", " << y << ", 4)";
 }
 
 // --------------------------------------------------------------------- pieces of one cell

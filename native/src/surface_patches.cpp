@@ -181,7 +181,7 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
   parallel_for(nchunks, [&](int64_t ci) {
     std::vector<Crossing>& out = found[ci];
     std::vector<std::pair<int32_t, Eigen::Vector3i>> seen;  // the surface cells a triangle overlaps
-    std::vector<uint8_t> in_range;
+    std::vector<int64_t> ids;
     const int64_t t1 = std::min(nt, (ci + 1) * chunk);
     for (int64_t t = ci * chunk; t < t1; ++t) {
       const Eigen::Vector3i& tri = tris[t];
@@ -232,21 +232,16 @@ SurfacePatches find_surface_patches(const Eigen::Vector3d& origin, double h, con
           }
         continue;
       }
-      // A large triangle: its cells marked in a map of its cell range (which the loop above has
-      // just walked), each linked to its marked neighbours.
-      const Eigen::Vector3i ext = c1 - c0 + Eigen::Vector3i::Ones();
-      auto at = [&](const Eigen::Vector3i& c) {
-        const Eigen::Vector3i r = c - c0;
-        return size_t(r.x() + int64_t(ext.x()) * (r.y() + int64_t(ext.y()) * r.z()));
-      };
-      in_range.assign(size_t(int64_t(ext.x()) * ext.y() * ext.z()), 0);
-      for (const auto& sc : seen) in_range[at(sc.second)] = 1;
+      // A large triangle: its cells are in ascending grid order (the loop above), so each
+      // neighbour is looked up by binary search (no map of the range).
+      ids.clear();
+      for (const auto& sc : seen) ids.push_back(g.index(sc.second));
       for (const auto& [si, ci] : seen)
         for (int o = 0; o < 27; ++o) {
           const Eigen::Vector3i d(o % 3 - 1, (o / 3) % 3 - 1, o / 9 - 1);
           const Eigen::Vector3i cj = ci + d;
           if (o == 13 || (cj.array() < c0.array()).any() || (cj.array() > c1.array()).any()) continue;
-          if (in_range[at(cj)]) share(si, d);
+          if (std::binary_search(ids.begin(), ids.end(), g.index(cj))) share(si, d);
         }
     }
   }, 1);

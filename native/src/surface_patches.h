@@ -4,9 +4,10 @@
 // components where they meet inside the cell: at a shared vertex in the cell's closed box or along
 // a shared edge that overlaps it; a fork's two tines joined far away are two, and so are a coarse
 // mesh's two sheets whose triangles share only a vertex beyond the cell). Any two neighbouring
-// cells one triangle overlaps share it, however many cells it spans. The patches are a property
-// of the surface in the cell, not of how it is cut into triangles. Internal to the lattice
-// builder: cell_pieces.cpp picks its candidate cells from it.
+// cells one triangle overlaps share it, however many cells it spans. For a joined, conforming
+// mesh the patches are a property of the surface in the cell, not of how it is cut into
+// triangles (overlapping or duplicate triangles and T-junctions can only add patches). Internal
+// to the lattice builder: cell_pieces.cpp picks its candidate cells from it.
 //
 // A fine mesh has hundreds of triangles per surface cell, so this is the costly part of cell
 // splitting; it avoids per-cell triangle lists:

@@ -158,6 +158,40 @@ PolygonMesh random_triangles(int n, unsigned seed) {
   return m;
 }
 
+PolygonMesh triangles_of_points(const std::vector<Eigen::Vector3d>& P, const std::vector<std::array<int, 3>>& T) {
+  PolygonMesh m;
+  m.vertices.resize(int64_t(P.size()), 3);
+  for (size_t i = 0; i < P.size(); ++i) m.vertices.row(int64_t(i)) = P[i].transpose();
+  m.face_offsets = {0};
+  for (const auto& t : T) {
+    m.face_indices.insert(m.face_indices.end(), t.begin(), t.end());
+    m.face_offsets.push_back(int64_t(m.face_indices.size()));
+  }
+  return m;
+}
+
+// Joined triangles on a lattice of whole and near-whole coordinates (on cell faces, and 5e-10 to
+// 2e-7 off them, on either side), with repeated vertices and duplicate triangles.
+PolygonMesh joined_near_faces(std::mt19937& rng) {
+  const double offs[] = {0, 0.5, 1e-8, -1e-8, 1e-10, -1e-10, 2e-7, -2e-7, 0.3, 0.7, 5e-10, -5e-10, 0.999999};
+  const int nv = 4 + int(rng() % 10);
+  std::vector<Eigen::Vector3d> P{Eigen::Vector3d::Zero()};
+  for (int v = 0; v < nv; ++v) {
+    Eigen::Vector3d p;
+    for (int a = 0; a < 3; ++a) p[a] = double(rng() % 5) + offs[rng() % 13];
+    P.push_back(p);
+  }
+  std::vector<std::array<int, 3>> T;
+  for (int t = 0, nt = 2 + int(rng() % 20); t < nt; ++t) {
+    std::array<int, 3> tri;
+    for (int k = 0; k < 3; ++k) tri[k] = 1 + int(rng() % nv);
+    if (rng() % 10 == 0) tri[2] = tri[0];
+    if (rng() % 10 == 0 && !T.empty()) tri = T[rng() % T.size()];
+    T.push_back(tri);
+  }
+  return triangles_of_points(P, T);
+}
+
 // The cell size at which the default lattice of a 1M-vertex torus (1414 x 707) is built.
 constexpr double kTorusCell = 0.09474523806783858;
 
@@ -196,6 +230,16 @@ TEST(SurfacePatches, SameAsEveryTriangleAgainstEveryCell) {
   // Soups and scattered triangles: cells with several patches.
   EXPECT_GT(expect_same_patches(soup_of(gen::sphere({0, 0, 0}, 1.0, 16, 32), 3), 0.2), 20);
   EXPECT_GT(expect_same_patches(random_triangles(300, 5), 0.3), 20);
+  // Two triangles that share only a vertex 1e-8 inside a cell face (in no cell's inside, so met
+  // only through the box test): one patch in that cell.
+  EXPECT_EQ(expect_same_patches(triangles_of_points({{0, 0, 0}, {1 - 1e-8, 1.5, 1.5}, {0.2, 1.2, 1.1}, {0.3, 1.8, 1.2},
+                                                     {0.2, 1.2, 1.9}, {0.3, 1.8, 1.8}},
+                                                    {{1, 2, 3}, {1, 4, 5}}),
+                                1.0),
+            0);
+  // Joined triangles with vertices on and next to cell faces, repeated vertices, duplicates.
+  std::mt19937 rng(12345);
+  for (int i = 0; i < 300; ++i) expect_same_patches(joined_near_faces(rng), 1.0);
   // Far from zero (beyond a million cells): every triangle takes the plain path.
   PolygonMesh far = gen::sphere({0, 0, 0}, 1.0, 12, 24);
   far.vertices.col(0).array() += 3e6 * 0.2;
@@ -234,9 +278,22 @@ TEST(SurfacePatches, LargeTrianglesMeetingOnlyBeyondTheCellAreTwoPatches) {
     wedge.face_indices.insert(wedge.face_indices.end(), t.begin(), t.end());
     wedge.face_offsets.push_back(int64_t(wedge.face_indices.size()));
   }
-  const Lattice lat = build(gen::concat({gen::point({0, 0, 0}), wedge}), 1.0, true);
+  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), wedge});
+  const Lattice lat = build(m, 1.0, true);
   for (int x = 3; x <= 10; ++x)  // grid index = coordinate + 2
     for (int y : {3, 4}) EXPECT_EQ(lat.cell_copies(x, y, 4), 2) << "cell (" << x << ", " << y << ", 4)";
+  // The patches themselves: two in each cell of the open part of the row, one where the fold is.
+  const std::vector<Eigen::Vector3i> tris = triangulate(m);
+  const Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(),
+                          m.vertices.colwise().maxCoeff().transpose(), 1.0, int64_t(1) << 32);
+  const SurfacePatches sp = find_surface_patches(g.origin, g.h, g.dims, g.marks, m.vertices, tris);
+  auto several_at = [&](double x, double y) {
+    const Eigen::Vector3i c = g.cell_of(Eigen::Vector3d(x, y, 2.5));
+    const int32_t s = sp.surf_of[size_t(g.index(c.x(), c.y(), c.z()))];
+    return s >= 0 && sp.several[size_t(s)];
+  };
+  for (double x = 1.5; x < 10; x += 1.0) EXPECT_TRUE(several_at(x, 1.5)) << x;
+  EXPECT_FALSE(several_at(12.5, 1.5));
 }
 
 // --------------------------------------------------------------------- pieces of one cell

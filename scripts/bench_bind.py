@@ -10,10 +10,9 @@ Run: /usr/bin/python3 scripts/bench_bind.py --other CHECKOUT [--rounds 2] [--out
 import argparse
 import json
 import os
-import subprocess
-import sys
 
 import machine_info
+from tree_child import run_child
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED = os.path.join(ROOT, "..", "shared", "data", "meshes")
@@ -53,14 +52,6 @@ MODELS = [("thin box", "a 237 x 0.9 x 0.9 box, 386 vertices, cell 0.5"),
           ("torus", "torus of 1M vertices, default lattice")]
 
 
-def run(checkout, model):
-    env = dict(os.environ, PYTHONPATH=os.path.join(checkout, "python"))
-    out = subprocess.run([sys.executable, "-c", CHILD, model], env=env, capture_output=True, text=True)
-    if out.returncode:
-        sys.exit(f"{checkout}: {out.stderr}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--other", required=True, help="the checkout to compare with, built (its python/ is used)")
@@ -79,8 +70,8 @@ def main():
     for model, label in models:
         mine, other = [], []
         for _ in range(a.rounds):
-            other.append(run(a.other, model))
-            mine.append(run(ROOT, model))
+            other.append(run_child(a.other, CHILD, model))
+            mine.append(run_child(ROOT, CHILD, model))
         m, o = min(r["bind_s"] for r in mine), min(r["bind_s"] for r in other)
         rows.append({"model": label, **mine[0], "bind_s": m, "other_bind_s": o})
         print(f"| {label} | {mine[0]['vertices']:,} | {mine[0]['cells']:,} | {mine[0]['nodes']:,} | "

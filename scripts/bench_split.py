@@ -6,12 +6,10 @@ holding about 11% of the vertices, this tree with and without splitting against 
 
 Run: /usr/bin/python3 scripts/bench_split.py --other CHECKOUT"""
 import argparse
-import json
 import os
-import subprocess
-import sys
 
 import machine_info
+from tree_child import run_child
 
 CHILD = r'''
 import json, sys, time
@@ -43,26 +41,18 @@ print(json.dumps({"vertices": len(V), "nodes": d.num_nodes, "cells": d.num_cells
 '''
 
 
-def run(python_path, args):
-    env = dict(os.environ, PYTHONPATH=python_path)
-    out = subprocess.run([sys.executable, "-c", CHILD, *args], env=env, capture_output=True, text=True)
-    if out.returncode:
-        sys.exit(out.stderr)
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def main():
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--other", required=True, help="checkout to compare with, built (its python/ is used)")
     a = p.parse_args()
-    here = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "python")
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     print("machine:", machine_info.describe(), "| load average before: %.2f %.2f %.2f" % os.getloadavg())
     print("| vertices | tree | nodes | cells | handle vertices | bind s | pose update ms (5 it + transfer) |")
     print("|---|---|---|---|---|---|---|")
     for nm, nn in ((1000, 500), (1414, 707)):
-        for label, path, split in (("other", os.path.join(a.other, "python"), "na"), ("split on", here, "on"),
+        for label, path, split in (("other", a.other, "na"), ("split on", here, "on"),
                                    ("split off", here, "off")):
-            r = run(path, [str(nm), str(nn), split])
+            r = run_child(path, CHILD, str(nm), str(nn), split)
             print(f"| {r['vertices']:,} | {label} | {r['nodes']:,} | {r['cells']:,} | "
                   f"{r['handles']:,} ({100 * r['handle_share']:.1f}%) | {r['bind_s']:.3f} | {r['pose_ms']:.1f} |",
                   flush=True)

@@ -11,11 +11,11 @@ Run: /usr/bin/python3 scripts/check_split_identity.py --other CHECKOUT [--quick]
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 
 import numpy as np
+from tree_child import run_child
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "python"))
@@ -111,15 +111,6 @@ def faces_array(F):
     return None
 
 
-def run(checkout, path, opts):
-    env = dict(os.environ, PYTHONPATH=os.path.join(checkout, "python"))
-    out = subprocess.run([sys.executable, "-c", CHILD, path, json.dumps(opts)], env=env,
-                         capture_output=True, text=True)
-    if out.returncode:
-        sys.exit(f"{checkout}: {out.stderr}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--other", required=True, help="the checkout to compare with, built (its python/ is used)")
@@ -135,7 +126,7 @@ def main():
                 Fa = np.array([[f[0], f[k], f[k + 1]] for f in F for k in range(1, len(f) - 1)], np.int64)
             path = os.path.join(tmp, "mesh.npz")
             np.savez(path, V=np.asarray(V, np.float64), F=Fa)
-            mine, other = run(ROOT, path, opts), run(a.other, path, opts)
+            mine, other = (run_child(tree, CHILD, path, json.dumps(opts)) for tree in (ROOT, a.other))
             same = mine == other
             differ += not same
             print(f"| {name} | {opts or 'default'} | {mine['cells']:,} | {mine['nodes']:,} | "

@@ -25,6 +25,29 @@ struct TinyUnionFind {
   void unite(int a, int b) { p[find(a)] = find(b); }
 };
 
+// The 6-neighbours of the voxels of a k^3 grid (vi = i + k (j + k l)) without divisions: bit f of
+// open[vi] says whether face f (-x, +x, -y, +y, -z, +z) leads to a voxel of the grid, step[f] is
+// the index step across it.
+struct VoxelSteps {
+  std::vector<uint8_t> open;
+  int32_t step[6];
+  explicit VoxelSteps(int k) : open(size_t(k) * k * k), step{-1, 1, -k, k, -k * k, k * k} {
+    size_t vi = 0;
+    for (int l = 0; l < k; ++l)
+      for (int j = 0; j < k; ++j)
+        for (int i = 0; i < k; ++i, ++vi)
+          open[vi] = uint8_t((i > 0) | (i + 1 < k) << 1 | (j > 0) << 2 | (j + 1 < k) << 3 | (l > 0) << 4 |
+                             (l + 1 < k) << 5);
+  }
+  // Calls visit(ni) for each neighbour ni of voxel vi.
+  template <class F>
+  void each(int32_t vi, F&& visit) const {
+    const uint8_t o = open[size_t(vi)];
+    for (int f = 0; f < 6; ++f)
+      if (o >> f & 1) visit(vi + step[f]);
+  }
+};
+
 }  // namespace
 
 CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
@@ -147,6 +170,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       across[size_t(6 * b + f)] = block_of_cell(Y);
     }
   }, 256);
+  const VoxelSteps steps(k);
   std::vector<std::vector<int32_t>> seeds(static_cast<size_t>(nb));  // unflooded air, per cell
   auto flood = [&](int64_t b) {  // from the cell's seeds, inside the cell
     std::vector<int32_t>& stack = seeds[size_t(b)];
@@ -154,17 +178,12 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     while (!stack.empty()) {
       const int32_t vi = stack.back();
       stack.pop_back();
-      const int c[3] = {vi % k, (vi / k) % k, vi / (k * k)};
-      for (int f = 0; f < 6; ++f) {
-        int n[3] = {c[0], c[1], c[2]};
-        n[f / 2] += f % 2 ? 1 : -1;
-        if (n[f / 2] < 0 || n[f / 2] >= k) continue;
-        const int32_t ni = int32_t(vindex(n[0], n[1], n[2]));
+      steps.each(vi, [&](int32_t ni) {
         if (v[ni] == 0) {
           __atomic_store_n(&v[ni], uint8_t(2), __ATOMIC_RELAXED);  // neighbours read the faces
           stack.push_back(ni);
         }
-      }
+      });
     }
     std::vector<int32_t>().swap(stack);
   };
@@ -307,17 +326,12 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
         const int32_t vi = todo.back();
         todo.pop_back();
         ++size[label - 3];
-        const int c[3] = {vi % k, (vi / k) % k, vi / (k * k)};
-        for (int f = 0; f < 6; ++f) {
-          int n[3] = {c[0], c[1], c[2]};
-          n[f / 2] += f % 2 ? 1 : -1;
-          if (n[f / 2] < 0 || n[f / 2] >= k) continue;
-          const int64_t ni = vindex(n[0], n[1], n[2]);
+        steps.each(vi, [&](int32_t ni) {
           if (v[ni] < 2) {
             v[ni] = label;
-            todo.push_back(int32_t(ni));
+            todo.push_back(ni);
           }
-        }
+        });
       }
     }
     pieces[b] = std::max(1, std::min(np, 253));

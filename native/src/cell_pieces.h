@@ -11,7 +11,7 @@
 //      no inside cell joins them), the surface cells among them are analysed too. Repeated until
 //      nothing changes.
 // 2. Voxels. Every candidate cell gets k^3 voxels (k = split_resolution). Surface voxels: a
-//    triangle overlaps the voxel (exact test, geometry.h). Air: non-surface voxels reached by a
+//    triangle overlaps the voxel (the exact test of geometry.h, found per triangle by voxel_hits.h). Air: non-surface voxels reached by a
 //    6-connected flood fill through the candidate cells, started from the faces that border a
 //    cell that is neither surface nor inside (each cell floods in parallel, then air crosses the
 //    faces of the cells that gained some, in rounds). Air reaches a candidate only through other

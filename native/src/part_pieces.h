@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "geometry.h"
+#include "voxel_hits.h"
 
 namespace larap {
 
@@ -30,29 +31,6 @@ inline bool sorted_sets_meet(const int32_t* a, const int32_t* a_end, const int32
     *a < *b ? ++a : ++b;
   }
   return false;
-}
-
-// Calls hit(vi) for each voxel vi of a cell's k^3 grid (corner: the cell's lowest corner, hv: the
-// voxel size; vi = i + k (j + k l)) whose box, grown by `grow` voxels to every side, the triangle
-// abc overlaps; skip(vi) true leaves a voxel untested.
-template <class Skip, class Hit>
-void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a,
-                        const Eigen::Vector3d& b, const Eigen::Vector3d& c, double grow, Skip&& skip, Hit&& hit) {
-  const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
-  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * grow + 1e-9));
-  int v0[3], v1[3];
-  for (int w = 0; w < 3; ++w) {
-    v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - grow - 1e-7)), 0, k - 1);
-    v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + grow + 1e-7)), 0, k - 1);
-  }
-  for (int l = v0[2]; l <= v1[2]; ++l)
-    for (int j = v0[1]; j <= v1[1]; ++j)
-      for (int i = v0[0]; i <= v1[0]; ++i) {
-        const int64_t vi = i + int64_t(k) * (j + int64_t(k) * l);
-        if (skip(vi)) continue;
-        const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
-        if (geometry::triangle_box_overlap(centre, half, a, b, c)) hit(vi);
-      }
 }
 
 // The parts hitting each surface voxel of a cell (CSR over its k^3 voxels, each list ascending).

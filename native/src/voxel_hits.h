@@ -1,0 +1,160 @@
+// Which voxels of an analysed cell a triangle overlaps (cell splitting, cell_pieces.h): the same
+// voxels as geometry::triangle_box_overlap tested on every voxel of the triangle's bounding box,
+// found at a fraction of the cost. Internal to the lattice builder.
+//
+// The exact test is a separating-axis test over 13 axes, computed afresh per voxel. Here the
+// triangle's side of each axis is computed once, and a voxel's centre enters as one dot product
+// per axis (Schwarz and Seidel's precomputed triangle/box test, 2010). Rounding makes the two
+// differ by far less than `tol` (below), so each axis is decided by this form where its margin is
+// wider than tol, and a voxel within tol of any axis's limit goes to the exact test: the hits are
+// the exact test's, bit for bit. Per column of voxels along the axis the normal is most aligned
+// with, the axes that do not vary along it cull the whole column, and the triangle's plane bounds
+// the voxels tested to the slab it crosses (a voxel to spare each side), so a large triangle
+// costs the columns of its bounding box, not its volume.
+#pragma once
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+#include "geometry.h"
+
+namespace larap {
+
+namespace voxel_hits_detail {
+
+// One separating axis m: the triangle projects onto [lo, hi] (vertices relative to the cell's
+// corner), the box onto centre +- r. A voxel centred at x is separated when
+// lo - m.x > r or m.x - hi > r.
+struct Axis {
+  Eigen::Vector3d m = Eigen::Vector3d::Zero();
+  double lo = 0.0, hi = 0.0, r = 0.0, tol = 0.0;
+  int zero = 0;  // 0: a real axis; 1: exactly zero, separates nothing; 2: zero, undecided
+};
+
+// +1: separated by more than tol; -1: overlapping on this axis by more than tol; 0: undecided.
+inline int judge(const Axis& x, const Eigen::Vector3d& centre) {
+  if (x.zero) return x.zero == 1 ? -1 : 0;
+  const double mc = x.m.dot(centre);
+  const double s = std::max(x.lo - mc, mc - x.hi) - x.r;
+  return s > x.tol ? 1 : s < -x.tol ? -1 : 0;
+}
+
+inline Axis make_axis(const Eigen::Vector3d& m, const Eigen::Vector3d p[3], double half, double tol) {
+  Axis x;
+  x.m = m;
+  const double q0 = m.dot(p[0]), q1 = m.dot(p[1]), q2 = m.dot(p[2]);
+  x.lo = std::min({q0, q1, q2});
+  x.hi = std::max({q0, q1, q2});
+  x.r = half * m.cwiseAbs().sum();
+  x.tol = tol;
+  return x;
+}
+
+}  // namespace voxel_hits_detail
+
+// Calls hit(vi) for each voxel vi of a cell's k^3 grid (corner: the cell's lowest corner, hv: the
+// voxel size; vi = i + k (j + k l)) whose box, grown by `grow` voxels to every side, the triangle
+// abc overlaps, exactly as geometry::triangle_box_overlap decides it; skip(vi) true leaves a voxel
+// untested. The order of the calls is unspecified.
+template <class Skip, class Hit>
+void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a,
+                        const Eigen::Vector3d& b, const Eigen::Vector3d& c, double grow, Skip&& skip, Hit&& hit) {
+  using namespace voxel_hits_detail;
+  const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
+  const double half = 0.5 * hv * (1.0 + 2.0 * grow + 1e-9);
+  const Eigen::Vector3d halfv = Eigen::Vector3d::Constant(half);
+  int v0[3], v1[3];
+  for (int w = 0; w < 3; ++w) {
+    v0[w] = std::clamp(int(std::floor((lo[w] - corner[w]) / hv - grow - 1e-7)), 0, k - 1);
+    v1[w] = std::clamp(int(std::floor((hi[w] - corner[w]) / hv + grow + 1e-7)), 0, k - 1);
+  }
+  auto centre_of = [&](const int* x) { return Eigen::Vector3d(hv * (x[0] + 0.5), hv * (x[1] + 0.5), hv * (x[2] + 0.5)); };
+  auto exact = [&](const int* x, int64_t vi) {
+    if (geometry::triangle_box_overlap(corner + centre_of(x), halfv, a, b, c)) hit(vi);
+  };
+
+  // Vertices relative to the corner; edges from the vertices themselves, so an edge component is
+  // exactly zero where the exact test's is (equal coordinates), and only there.
+  const Eigen::Vector3d p[3] = {a - corner, b - corner, c - corner};
+  const Eigen::Vector3d e[3] = {b - a, c - b, a - c};
+  const Eigen::Vector3d n = e[0].cross(e[1]);
+  // Rounding bound: the exact test works on vertices minus the voxel's centre, both of size up to
+  // L; its projections differ from these by a few units of roundoff times L^2 (edge axes) or
+  // L^2 |e| (the normal). tol takes thousands of them.
+  const double L = std::max({a.cwiseAbs().maxCoeff(), b.cwiseAbs().maxCoeff(), c.cwiseAbs().maxCoeff(),
+                             corner.cwiseAbs().maxCoeff() + k * hv});
+  const double emax = std::max({e[0].cwiseAbs().sum(), e[1].cwiseAbs().sum(), e[2].cwiseAbs().sum()});
+  constexpr double T = 1e-12;
+  const bool finite = n.allFinite() && std::isfinite(L) && std::isfinite(emax);
+
+  int d = 0;
+  n.cwiseAbs().maxCoeff(&d);
+  const int u = (d + 1) % 3, w = (d + 2) % 3;
+  Axis column_axes[5], voxel_axes[8];  // constant along d / varying along d
+  int nc = 0, nv = 0;
+  for (int q = 0; q < 3; ++q) {
+    Eigen::Vector3d unit = Eigen::Vector3d::Zero();
+    unit[q] = 1.0;
+    (q == d ? voxel_axes[nv++] : column_axes[nc++]) = make_axis(unit, p, half, T * L);
+    for (int i = 0; i < 3; ++i) {
+      const Eigen::Vector3d m = unit.cross(e[i]);
+      Axis x = make_axis(m, p, half, T * (L * L + m.cwiseAbs().sum() * L));
+      if (m.isZero(0.0)) x.zero = 1;
+      (q == d ? column_axes[nc++] : voxel_axes[nv++]) = x;
+    }
+  }
+  Axis normal = make_axis(n, p, half, T * (4.0 * L * L * emax + n.cwiseAbs().sum() * L));
+  if (n.isZero(0.0)) normal.zero = 2;
+  voxel_axes[nv++] = normal;
+  // One voxel along d moves the normal's projection by |n_d| hv: the slab bounds the voxels only
+  // when that is well beyond tol.
+  const bool slab = finite && std::abs(n[d]) * hv > 2.0 * normal.tol;
+
+  int x[3];
+  for (x[w] = v0[w]; x[w] <= v1[w]; ++x[w])
+    for (x[u] = v0[u]; x[u] <= v1[u]; ++x[u]) {
+      x[d] = 0;
+      const Eigen::Vector3d c0 = centre_of(x);
+      bool sure = finite;  // every axis decided so far
+      bool out = false;
+      for (const Axis& ax : column_axes) {
+        const int j = judge(ax, c0);
+        out = out || j > 0;
+        sure = sure && j < 0;
+      }
+      if (out && finite) continue;
+      int x0 = v0[d], x1 = v1[d];
+      if (slab) {
+        // |n . (p - centre)| <= r where the plane crosses the voxel's box.
+        const double s = normal.lo - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
+        const double s1 = normal.hi - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
+        double t0 = (s - normal.r) / (hv * n[d]) - 0.5, t1 = (s1 + normal.r) / (hv * n[d]) - 0.5;
+        if (t0 > t1) std::swap(t0, t1);
+        x0 = std::max(x0, int(std::floor(std::max(t0, -2.0)) - 1.0));
+        x1 = std::min(x1, int(std::ceil(std::min(t1, double(k) + 1.0)) + 1.0));
+      }
+      for (x[d] = x0; x[d] <= x1; ++x[d]) {
+        const int64_t vi = x[0] + int64_t(k) * (x[1] + int64_t(k) * x[2]);
+        if (skip(vi)) continue;
+        if (!sure) {
+          exact(x, vi);
+          continue;
+        }
+        const Eigen::Vector3d cv = centre_of(x);
+        int verdict = -1;  // -1 overlap, 0 undecided, 1 separated
+        for (int q = 0; q < nv; ++q) {
+          const int j = judge(voxel_axes[q], cv);
+          if (j > 0) {
+            verdict = 1;
+            break;
+          }
+          if (j == 0) verdict = 0;
+        }
+        if (verdict < 0) hit(vi);
+        else if (verdict == 0) exact(x, vi);
+      }
+    }
+}
+
+}  // namespace larap

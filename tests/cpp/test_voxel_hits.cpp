@@ -1,0 +1,149 @@
+// The voxels a triangle overlaps in an analysed cell (voxel_hits.h) are exactly those that the
+// plain separating-axis test finds on every voxel of the cell: random, grid-snapped, degenerate,
+// sliver and far-away triangles, grown and plain voxels, several resolutions, with and without
+// skipped voxels.
+// Run: cmake --build build --target larap_tests && ctest --test-dir build -R VoxelHits
+#include <gtest/gtest.h>
+
+#include <random>
+#include <set>
+#include <vector>
+
+#include "geometry.h"
+#include "part_pieces.h"
+#include "voxel_hits.h"
+
+using namespace larap;
+
+namespace {
+
+// Every voxel of the cell against the exact test, as the builder did before (grown boxes as
+// for_each_voxel_hit grows them).
+std::set<int64_t> every_voxel(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a,
+                              const Eigen::Vector3d& b, const Eigen::Vector3d& c, double grow) {
+  std::set<int64_t> out;
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * hv * (1.0 + 2.0 * grow + 1e-9));
+  for (int l = 0; l < k; ++l)
+    for (int j = 0; j < k; ++j)
+      for (int i = 0; i < k; ++i) {
+        const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
+        if (geometry::triangle_box_overlap(centre, half, a, b, c)) out.insert(i + int64_t(k) * (j + int64_t(k) * l));
+      }
+  return out;
+}
+
+struct Tally {
+  int cases = 0, with_hits = 0, partial = 0;  // partial: some but not all of the bounding box hit
+};
+
+void expect_same(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                 const Eigen::Vector3d& c, double grow, Tally& tally, const char* what) {
+  const std::set<int64_t> want = every_voxel(corner, hv, k, a, b, c, grow);
+  std::vector<int64_t> got;
+  for_each_voxel_hit(corner, hv, k, a, b, c, grow, [](int64_t) { return false; },
+                     [&](int64_t vi) { got.push_back(vi); });
+  const std::set<int64_t> got_set(got.begin(), got.end());
+  ASSERT_EQ(got_set.size(), got.size()) << what << ": a voxel reported twice";
+  ASSERT_EQ(got_set, want) << what << " k " << k << " grow " << grow << "\n a " << a.transpose() << "\n b "
+                           << b.transpose() << "\n c " << c.transpose() << "\n corner " << corner.transpose()
+                           << " hv " << hv;
+  // Skipping every third voxel leaves the others.
+  std::set<int64_t> kept;
+  for_each_voxel_hit(corner, hv, k, a, b, c, grow, [](int64_t vi) { return vi % 3 == 0; },
+                     [&](int64_t vi) { kept.insert(vi); });
+  std::set<int64_t> want_kept;
+  for (int64_t vi : want)
+    if (vi % 3) want_kept.insert(vi);
+  ASSERT_EQ(kept, want_kept) << what;
+  ++tally.cases;
+  tally.with_hits += !want.empty();
+  tally.partial += !want.empty() && want.size() < size_t(k) * k * k / 2;
+}
+
+}  // namespace
+
+TEST(VoxelHits, SameAsTestingEveryVoxel) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  Tally tally;
+  for (int k : {4, 7, 24, 64}) {
+    for (double grow : {0.0, kContact}) {
+      const int rounds = k == 64 ? 60 : 300;
+      for (int r = 0; r < rounds; ++r) {
+        const double h = 0.5 + unit(rng);
+        const double hv = h / k;
+        const Eigen::Vector3d corner(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5);
+        // A triangle of a random size around the cell: from a tenth of a voxel to three cells.
+        const double size = hv * std::pow(30.0 * k, unit(rng)) * 0.1;
+        const Eigen::Vector3d centre = corner + h * Eigen::Vector3d(unit(rng), unit(rng), unit(rng)) * 1.4 -
+                                       Eigen::Vector3d::Constant(0.2 * h);
+        auto near = [&] { return centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5); };
+        Eigen::Vector3d a = near(), b = near(), c = near();
+        switch (r % 6) {
+          case 1: {  // on voxel boundaries: snapped to the voxel lattice, often axis-aligned
+            auto snap = [&](Eigen::Vector3d p) {
+              for (int w = 0; w < 3; ++w) p[w] = corner[w] + hv * std::round((p[w] - corner[w]) / hv);
+              return p;
+            };
+            a = snap(a), b = snap(b), c = snap(c);
+            if (r % 12 == 1) b[0] = a[0], c[0] = a[0];  // in a voxel face plane
+            break;
+          }
+          case 2:  // a sliver: c almost on ab
+            c = a + (b - a) * unit(rng) + 1e-9 * hv * Eigen::Vector3d(unit(rng), unit(rng), unit(rng));
+            break;
+          case 3:  // degenerate: collinear, or two vertices one
+            if (r % 12 == 3) c = a + 0.3 * (b - a);
+            else b = a;
+            break;
+          case 4: {  // far from the origin, where rounding reaches the voxels' 1e-9 growth: on voxel planes
+            const Eigen::Vector3d far = Eigen::Vector3d::Constant(r % 12 == 4 ? 1e4 : 3e6) + corner;
+            auto snap = [&](Eigen::Vector3d p) {
+              for (int w = 0; w < 3; ++w) p[w] = far[w] + hv * std::round((p[w] - corner[w]) / hv);
+              return p;
+            };
+            a = snap(a), b = snap(b), c = snap(c);
+            if (r % 24 == 10) b[1] = a[1], c[1] = a[1];
+            expect_same(far, hv, k, a, b, c, grow, tally, "far");
+            continue;
+          }
+          case 5:  // one edge along an axis
+            b = a;
+            b[r % 3] += size;
+            break;
+          default:
+            break;
+        }
+        expect_same(corner, hv, k, a, b, c, grow, tally, "random");
+      }
+    }
+  }
+  // The cases reached what they are meant to: hits, and partial hits.
+  EXPECT_GT(tally.with_hits, tally.cases / 3);
+  EXPECT_GT(tally.partial, tally.cases / 4);
+}
+
+// Triangles exactly on the planes between voxels, the grid-aligned boxes that generated meshes
+// are made of: every voxel on both sides of the plane that the face touches.
+TEST(VoxelHits, FacesOnVoxelPlanesHitBothSides) {
+  const int k = 8;
+  const double hv = 0.125;
+  const Eigen::Vector3d corner(0, 0, 0);
+  for (int axis = 0; axis < 3; ++axis)
+    for (int plane = 0; plane <= k; ++plane) {
+      Eigen::Vector3d a = Eigen::Vector3d::Constant(0.25), b = a, c = a;
+      a[axis] = b[axis] = c[axis] = plane * hv;
+      b[(axis + 1) % 3] = 0.75;
+      c[(axis + 2) % 3] = 0.75;
+      std::set<int64_t> got;
+      for_each_voxel_hit(corner, hv, k, a, b, c, 0.0, [](int64_t) { return false; }, [&](int64_t vi) { got.insert(vi); });
+      EXPECT_EQ(got, every_voxel(corner, hv, k, a, b, c, 0.0));
+      // Both layers next to the plane (one at the cell's faces).
+      std::set<int> layers;
+      for (int64_t vi : got) layers.insert(int(axis == 0 ? vi % k : axis == 1 ? (vi / k) % k : vi / (k * k)));
+      std::set<int> want;
+      if (plane > 0) want.insert(plane - 1);
+      if (plane < k) want.insert(plane);
+      EXPECT_EQ(layers, want) << "axis " << axis << " plane " << plane;
+    }
+}

@@ -77,7 +77,7 @@ TEST(VoxelHits, SameAsTestingEveryVoxel) {
         const double size = hv * std::pow(30.0 * k, unit(rng)) * 0.1;
         const Eigen::Vector3d centre = corner + h * Eigen::Vector3d(unit(rng), unit(rng), unit(rng)) * 1.4 -
                                        Eigen::Vector3d::Constant(0.2 * h);
-        auto near = [&] { return centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5); };
+        auto near = [&]() -> Eigen::Vector3d { return centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5); };
         Eigen::Vector3d a = near(), b = near(), c = near();
         switch (r % 6) {
           case 1: {  // on voxel boundaries: snapped to the voxel lattice, often axis-aligned

@@ -1,7 +1,8 @@
 // The voxels a triangle overlaps in an analysed cell (voxel_hits.h) are exactly those that the
 // plain separating-axis test finds on every voxel of the cell: random, grid-snapped, degenerate,
-// sliver and far-away triangles, grown and plain voxels, several resolutions, with and without
-// skipped voxels.
+// sliver, far-away and tiny triangles, triangles larger than the cell and tilted, planes through
+// or within 1e-17 voxels of a grown voxel's corner; grown and plain voxels, several resolutions,
+// with and without skipped voxels.
 // Run: cmake --build build --target larap_tests && ctest --test-dir build -R VoxelHits
 #include <gtest/gtest.h>
 
@@ -27,7 +28,8 @@ std::set<int64_t> every_voxel(const Eigen::Vector3d& corner, double hv, int k, c
     for (int j = 0; j < k; ++j)
       for (int i = 0; i < k; ++i) {
         const Eigen::Vector3d centre = corner + hv * Eigen::Vector3d(i + 0.5, j + 0.5, l + 0.5);
-        if (geometry::triangle_box_overlap(centre, half, a, b, c)) out.insert(i + int64_t(k) * (j + int64_t(k) * l));
+        if (geometry::triangle_box_overlap(centre, half, a, b, c))
+          out.insert(i + int64_t(k) * (j + int64_t(k) * l));
       }
   return out;
 }
@@ -36,12 +38,13 @@ struct Tally {
   int cases = 0, with_hits = 0, partial = 0;  // partial: some but not all of the bounding box hit
 };
 
-void expect_same(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                 const Eigen::Vector3d& c, double grow, Tally& tally, const char* what) {
+void expect_same(const Eigen::Vector3d& corner, double hv, int k, const Eigen::Vector3d& a,
+                 const Eigen::Vector3d& b, const Eigen::Vector3d& c, double grow, Tally& tally,
+                 const char* what) {
   const std::set<int64_t> want = every_voxel(corner, hv, k, a, b, c, grow);
   std::vector<int64_t> got;
-  for_each_voxel_hit(corner, hv, k, a, b, c, grow, [](int64_t) { return false; },
-                     [&](int64_t vi) { got.push_back(vi); });
+  for_each_voxel_hit(
+      corner, hv, k, a, b, c, grow, [](int64_t) { return false; }, [&](int64_t vi) { got.push_back(vi); });
   const std::set<int64_t> got_set(got.begin(), got.end());
   ASSERT_EQ(got_set.size(), got.size()) << what << ": a voxel reported twice";
   ASSERT_EQ(got_set, want) << what << " k " << k << " grow " << grow << "\n a " << a.transpose() << "\n b "
@@ -49,8 +52,9 @@ void expect_same(const Eigen::Vector3d& corner, double hv, int k, const Eigen::V
                            << " hv " << hv;
   // Skipping every third voxel leaves the others.
   std::set<int64_t> kept;
-  for_each_voxel_hit(corner, hv, k, a, b, c, grow, [](int64_t vi) { return vi % 3 == 0; },
-                     [&](int64_t vi) { kept.insert(vi); });
+  for_each_voxel_hit(
+      corner, hv, k, a, b, c, grow, [](int64_t vi) { return vi % 3 == 0; },
+      [&](int64_t vi) { kept.insert(vi); });
   std::set<int64_t> want_kept;
   for (int64_t vi : want)
     if (vi % 3) want_kept.insert(vi);
@@ -68,7 +72,7 @@ TEST(VoxelHits, SameAsTestingEveryVoxel) {
   Tally tally;
   for (int k : {4, 7, 24, 64}) {
     for (double grow : {0.0, kContact}) {
-      const int rounds = k == 64 ? 60 : 300;
+      const int rounds = k == 64 ? 90 : 450;
       for (int r = 0; r < rounds; ++r) {
         const double h = 0.5 + unit(rng);
         const double hv = h / k;
@@ -77,14 +81,16 @@ TEST(VoxelHits, SameAsTestingEveryVoxel) {
         const double size = hv * std::pow(30.0 * k, unit(rng)) * 0.1;
         const Eigen::Vector3d centre = corner + h * Eigen::Vector3d(unit(rng), unit(rng), unit(rng)) * 1.4 -
                                        Eigen::Vector3d::Constant(0.2 * h);
-        auto near = [&]() -> Eigen::Vector3d { return centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5); };
+        auto near = [&]() -> Eigen::Vector3d {
+          return centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5);
+        };
+        auto snap = [&](Eigen::Vector3d p) {  // onto the voxel lattice
+          for (int w = 0; w < 3; ++w) p[w] = corner[w] + hv * std::round((p[w] - corner[w]) / hv);
+          return p;
+        };
         Eigen::Vector3d a = near(), b = near(), c = near();
-        switch (r % 6) {
+        switch (r % 9) {
           case 1: {  // on voxel boundaries: snapped to the voxel lattice, often axis-aligned
-            auto snap = [&](Eigen::Vector3d p) {
-              for (int w = 0; w < 3; ++w) p[w] = corner[w] + hv * std::round((p[w] - corner[w]) / hv);
-              return p;
-            };
             a = snap(a), b = snap(b), c = snap(c);
             if (r % 12 == 1) b[0] = a[0], c[0] = a[0];  // in a voxel face plane
             break;
@@ -93,16 +99,18 @@ TEST(VoxelHits, SameAsTestingEveryVoxel) {
             c = a + (b - a) * unit(rng) + 1e-9 * hv * Eigen::Vector3d(unit(rng), unit(rng), unit(rng));
             break;
           case 3:  // degenerate: collinear, or two vertices one
-            if (r % 12 == 3) c = a + 0.3 * (b - a);
-            else b = a;
+            if (r % 12 == 3)
+              c = a + 0.3 * (b - a);
+            else
+              b = a;
             break;
           case 4: {  // far from the origin, where rounding reaches the voxels' 1e-9 growth: on voxel planes
             const Eigen::Vector3d far = Eigen::Vector3d::Constant(r % 12 == 4 ? 1e4 : 3e6) + corner;
-            auto snap = [&](Eigen::Vector3d p) {
+            auto snap_far = [&](Eigen::Vector3d p) {
               for (int w = 0; w < 3; ++w) p[w] = far[w] + hv * std::round((p[w] - corner[w]) / hv);
               return p;
             };
-            a = snap(a), b = snap(b), c = snap(c);
+            a = snap_far(a), b = snap_far(b), c = snap_far(c);
             if (r % 24 == 10) b[1] = a[1], c[1] = a[1];
             expect_same(far, hv, k, a, b, c, grow, tally, "far");
             continue;
@@ -111,6 +119,41 @@ TEST(VoxelHits, SameAsTestingEveryVoxel) {
             b = a;
             b[r % 3] += size;
             break;
+          case 6: {  // larger than the cell, tilted: the plane's slab bounds each column
+            auto spread = [&] {
+              return snap(corner + h * Eigen::Vector3d(3 * unit(rng) - 1, 3 * unit(rng) - 1, unit(rng)));
+            };
+            a = spread(), b = spread(), c = spread();
+            if (r % 18 == 6) b[r % 3] = a[r % 3], c[r % 3] = std::nextafter(a[r % 3], 1e300);
+            break;
+          }
+          case 7: {  // a plane through a grown voxel's corner, or within 1e-5 to 1e-17 voxels of it
+            const Eigen::Vector3d sign(r & 1 ? 1 : -1, r & 2 ? 1 : -1, r & 4 ? 1 : -1);
+            const Eigen::Vector3d corner_point =
+                corner +
+                hv * (Eigen::Vector3d(int(unit(rng) * k), int(unit(rng) * k), int(unit(rng) * k)) +
+                      Eigen::Vector3d::Constant(0.5)) +
+                0.5 * hv * (1.0 + 2.0 * grow + 1e-9) * sign;
+            const Eigen::Vector3d normal =
+                (Eigen::Vector3d(unit(rng), unit(rng), unit(rng)) + Eigen::Vector3d::Constant(0.05))
+                    .cwiseProduct(sign)
+                    .normalized();
+            const double offset =
+                r % 4 == 3 ? 0.0 : hv * std::pow(10.0, -5.0 - 12.0 * unit(rng)) * (r & 8 ? 1 : -1);
+            const Eigen::Vector3d t1 = normal.unitOrthogonal(), t2 = normal.cross(t1);
+            const Eigen::Vector3d q = corner_point + offset * normal;
+            const double radius = hv * (0.5 + 3 * k * unit(rng) * unit(rng)),
+                         th = 6.283185307179586 * unit(rng);
+            a = q + radius * (std::cos(th) * t1 + std::sin(th) * t2);
+            b = q + radius * (std::cos(th + 2.1) * t1 + std::sin(th + 2.1) * t2);
+            c = q + radius * (std::cos(th + 4.2) * t1 + std::sin(th + 4.2) * t2);
+            break;
+          }
+          case 8: {  // everything tiny, where the exact test's squared lengths underflow
+            const double s = r % 18 == 8 ? std::ldexp(1.0, -300) : std::ldexp(1.0, -535);
+            expect_same(s * corner, s * hv, k, s * a, s * b, s * c, grow, tally, "tiny");
+            continue;
+          }
           default:
             break;
         }
@@ -136,7 +179,8 @@ TEST(VoxelHits, FacesOnVoxelPlanesHitBothSides) {
       b[(axis + 1) % 3] = 0.75;
       c[(axis + 2) % 3] = 0.75;
       std::set<int64_t> got;
-      for_each_voxel_hit(corner, hv, k, a, b, c, 0.0, [](int64_t) { return false; }, [&](int64_t vi) { got.insert(vi); });
+      for_each_voxel_hit(
+          corner, hv, k, a, b, c, 0.0, [](int64_t) { return false; }, [&](int64_t vi) { got.insert(vi); });
       EXPECT_EQ(got, every_voxel(corner, hv, k, a, b, c, 0.0));
       // Both layers next to the plane (one at the cell's faces).
       std::set<int> layers;

@@ -50,11 +50,6 @@ struct VoxelSteps {
 
 }  // namespace
 
-// How far from a candidate air is followed through cells that hold one patch (conduits, below).
-// Suzanne (507 vertices, default lattice) splits 76 cells with none, 79 with 1, 117 with 2, 120
-// with 4 or 50; truck.obj 416, then 521 from 1 on (2026-11-23).
-constexpr int kConduitRings = 2;
-
 CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
                             const std::vector<uint8_t>& marks, const RowMatrixX3d& V,
                             const std::vector<Eigen::Vector3i>& tris,
@@ -129,54 +124,21 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
   const int64_t nb = int64_t(cand_surf.size());
   if (nb == 0) return out;
-  // Conduits: the surface cells within kConduitRings faces of a candidate that are not candidates
-  // themselves (one patch each). They get voxels and carry air, but no pieces: space between two
-  // surfaces in a candidate often opens to the outside only through cells that hold one of the
-  // surfaces. (Inside cells next to candidates, as conduits too, changed no split cell of the
-  // public meshes and cost as much again: not kept.) flow_cell: grid index of the candidates, then
-  // the conduits (flow index = place in it); flow_of_surf: a surface cell's flow index.
-  std::vector<int64_t> flow_cell(static_cast<size_t>(nb));
-  for (int64_t b = 0; b < nb; ++b) flow_cell[size_t(b)] = surf_cells[cand_surf[b]];
-  std::vector<int32_t> flow_surf = cand_surf;
-  std::vector<int32_t> flow_of_surf = block_of_surf;
-  for (int ring = 0, from = 0; ring < kConduitRings; ++ring) {
-    const int to = int(flow_surf.size());
-    for (int i = from; i < to; ++i) {
-      const Eigen::Vector3i X = g.coords(surf_cells[flow_surf[size_t(i)]]);
-      for (int f = 0; f < 6; ++f) {
-        Eigen::Vector3i Y = X;
-        Y[f / 2] += f % 2 ? 1 : -1;
-        if (!g.contains(Y)) continue;
-        const int32_t sy = surf_of[g.index(Y)];
-        if (sy < 0 || flow_of_surf[sy] >= 0) continue;
-        flow_of_surf[sy] = int32_t(flow_surf.size());
-        flow_surf.push_back(sy);
-      }
-    }
-    from = to;
-  }
-  for (size_t i = size_t(nb); i < flow_surf.size(); ++i) flow_cell.push_back(surf_cells[flow_surf[i]]);
-  const int64_t nf = int64_t(flow_cell.size());
   const int64_t k3 = int64_t(k) * k * k;
-  out.voxels = nf * k3;
-  std::vector<uint8_t> vox(static_cast<size_t>(nf * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
+  out.voxels = nb * k3;
+  std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
   const double hv = h / k;
-  auto block_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {  // a candidate's block, or -1
+  auto block_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {
     if (!g.contains(c)) return -1;
     const int32_t s = surf_of[g.index(c)];
     return s >= 0 ? block_of_surf[s] : -1;
   };
-  auto flow_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {  // a candidate's or conduit's, or -1
-    if (!g.contains(c)) return -1;
-    const int32_t s = surf_of[g.index(c)];
-    return s >= 0 ? flow_of_surf[s] : -1;
-  };
   auto vindex = [k](int i, int j, int l) { return i + int64_t(k) * (j + int64_t(k) * l); };
 
-  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate, then of each conduit
-  triangles_of(sp, tris, flow_surf, cand_offsets, cand_tris);
-  parallel_for(nf, [&](int64_t b) {
-    const Eigen::Vector3i X = g.coords(flow_cell[b]);
+  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate
+  triangles_of(sp, tris, cand_surf, cand_offsets, cand_tris);
+  parallel_for(nb, [&](int64_t b) {
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     const Eigen::Vector3d corner = origin + h * X.cast<double>();
     uint8_t* v = vox.data() + b * k3;
     for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
@@ -199,17 +161,17 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     c[(axis + 2) % 3] = w;
     return vindex(c[0], c[1], c[2]);
   };
-  std::vector<int64_t> across(static_cast<size_t>(6 * nf));  // the flowing neighbour over each face, or -1
-  parallel_for(nf, [&](int64_t b) {
-    const Eigen::Vector3i X = g.coords(flow_cell[b]);
+  std::vector<int64_t> across(static_cast<size_t>(6 * nb));  // the analysed neighbour over each face, or -1
+  parallel_for(nb, [&](int64_t b) {
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     for (int f = 0; f < 6; ++f) {
       Eigen::Vector3i Y = X;
       Y[f / 2] += f % 2 ? 1 : -1;
-      across[size_t(6 * b + f)] = flow_of_cell(Y);
+      across[size_t(6 * b + f)] = block_of_cell(Y);
     }
   }, 256);
   const VoxelSteps steps(k);
-  std::vector<std::vector<int32_t>> seeds(static_cast<size_t>(nf));  // unflooded air, per cell
+  std::vector<std::vector<int32_t>> seeds(static_cast<size_t>(nb));  // unflooded air, per cell
   auto flood = [&](int64_t b) {  // from the cell's seeds, inside the cell
     std::vector<int32_t>& stack = seeds[size_t(b)];
     uint8_t* v = vox.data() + b * k3;
@@ -225,9 +187,9 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
     std::vector<int32_t>().swap(stack);
   };
-  std::vector<uint8_t> gained(static_cast<size_t>(nf), 0);
-  parallel_for(nf, [&](int64_t b) {
-    const Eigen::Vector3i X = g.coords(flow_cell[b]);
+  std::vector<uint8_t> gained(static_cast<size_t>(nb), 0);
+  parallel_for(nb, [&](int64_t b) {
+    const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     uint8_t* v = vox.data() + b * k3;
     for (int f = 0; f < 6; ++f) {
       const int axis = f / 2, side = f % 2;
@@ -246,7 +208,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     gained[size_t(b)] = !seeds[size_t(b)].empty();
     flood(b);
   }, 4);
-  std::vector<int64_t> changed = parallel_select(nf, [&](int64_t b) { return gained[size_t(b)] != 0; }, 4096);
+  std::vector<int64_t> changed = parallel_select(nb, [&](int64_t b) { return gained[size_t(b)] != 0; }, 4096);
   while (!changed.empty()) {
     // Cells next to a changed one take the air across their shared face (each cell writes only
     // its own voxels and seeds).

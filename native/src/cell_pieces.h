@@ -10,17 +10,14 @@
 //      their surfaces do not connect within the 2x2x2 block (no triangle overlaps two of them and
 //      no inside cell joins them), the surface cells among them are analysed too. Repeated until
 //      nothing changes.
-// 2. Voxels. Every candidate cell gets k^3 voxels (k = split_resolution), and so does every
-//    surface cell within two faces of a candidate (a conduit: it carries air, its pieces are not
-//    found). Surface voxels: a triangle overlaps the voxel (the exact test of geometry.h, found
-//    per triangle by voxel_hits.h). Air: non-surface voxels reached by a 6-connected flood fill
-//    through the candidates and conduits, started from the faces that border a cell that is
-//    neither surface nor inside (each cell floods in parallel, then air crosses the faces of the
-//    cells that gained some, in rounds). Air reaches a candidate only through candidates and
-//    conduits: space between two surfaces that opens to the outside only farther away, or only
-//    through a pocket of cells the grid's own flood marked inside, is material. Material:
-//    everything else (so sheets, soups, open and flipped meshes all have material: at least
-//    their surface voxels).
+// 2. Voxels. Every candidate cell gets k^3 voxels (k = split_resolution). Surface voxels: a
+//    triangle overlaps the voxel (the exact test of geometry.h, found per triangle by voxel_hits.h). Air: non-surface voxels reached by a
+//    6-connected flood fill through the candidate cells, started from the faces that border a
+//    cell that is neither surface nor inside (each cell floods in parallel, then air crosses the
+//    faces of the cells that gained some, in rounds). Air reaches a candidate only through other
+//    candidates: space between two surfaces that opens to the outside only through surface cells
+//    that are not analysed is material. Material: everything else (so sheets, soups, open and
+//    flipped meshes all have material: at least their surface voxels).
 // 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
 //    analysed cells connect when material voxels touch across the face; a piece connects to a
 //    non-analysed kept neighbour when it has material on the shared face.

@@ -334,41 +334,6 @@ TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
   EXPECT_TRUE(plain.cell_weight.empty() && plain.adj_weight.empty());
 }
 
-// A block 1.1 cells thick lying 0.3 cells over a thick box's top, its underside in the box's top
-// layer of cells (grid layer 5): the four cells under it hold both surfaces. The empty cells
-// beside and over the block are marked inside, as the grid's own flood marks a pocket it cannot
-// enter (Suzanne has such pockets behind her ears), so the gap's air reaches the outside only
-// through two rings of cells that hold the box's top alone, one patch each: cells whose pieces
-// are not found, carrying air as conduits. Block and box are then two pieces in each of the four
-// cells; with air followed through analysed cells only, or one ring further, the gap was
-// material and they were one.
-TEST(CellPieces, AirReachesAGapThroughCellsOfOneSurface) {
-  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({0.5, 0.5, 0.5}, {8.5, 8.5, 3.5}),
-                                     gen::box({3.2, 3.2, 3.8}, {4.8, 4.8, 4.9})});
-  const std::vector<Eigen::Vector3i> tris = triangulate(m);
-  Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(), m.vertices.colwise().maxCoeff().transpose(),
-                    1.0, int64_t(1) << 32);
-  // grid index = coordinate + 2: the block's cells are x, y in {5, 6}, layers 5 and 6; the empty
-  // cells over the box's top layer within one cell of the block (layers 6 and 7) become a pocket.
-  for (int z = 6; z <= 7; ++z)
-    for (int x = 4; x <= 7; ++x)
-      for (int y = 4; y <= 7; ++y) {
-        uint8_t& mark = g.marks[size_t(g.index(x, y, z))];
-        if (!(mark & (kSurface | kInside))) mark = uint8_t((mark & ~kOutside) | kInside);
-      }
-  const CellPieces pieces = find_cell_pieces(g.origin, g.h, g.dims, g.marks, m.vertices, tris, mesh_parts(m),
-                                             g.vertex_cells, 24);
-  int checked = 0;
-  for (size_t i = 0; i < pieces.cells.size(); ++i) {
-    const int64_t id = pieces.cells[i];
-    const int x = int(id % g.dims.x()), y = int((id / g.dims.x()) % g.dims.y()), z = int(id / (int64_t(g.dims.x()) * g.dims.y()));
-    if (z != 5 || x < 5 || x > 6 || y < 5 || y > 6) continue;
-    EXPECT_EQ(pieces.pieces[i], 2) << "cell (" << x << ", " << y << ", 5)";
-    ++checked;
-  }
-  EXPECT_EQ(checked, 4);
-}
-
 // Two slabs of separate mesh parts in one cell, 0.6 x 0.6 and 0.5 x 0.5 wide (so that no corners
 // coincide, which would make them one part), 0.15 thick and `gap` apart across their faces, turned
 // `degrees` about the x axis through the cell's centre (cell (3,3,3), as above).

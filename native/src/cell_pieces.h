@@ -16,7 +16,9 @@
 //    cell that is neither surface nor inside (each cell floods in parallel, then air crosses the
 //    faces of the cells that gained some, in rounds). Air reaches a candidate only through other
 //    candidates: space between two surfaces that opens to the outside only through surface cells
-//    that are not analysed is material. Material: everything else (so sheets, soups, open and
+//    that are not analysed is material. It also enters a solid through any hole in its surface
+//    wider than about a voxel, and empties the solid's analysed cells (a known defect: the voxels
+//    need an inside test, docs/method.md). Material: everything else (so sheets, soups, open and
 //    flipped meshes all have material: at least their surface voxels).
 // 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
 //    analysed cells connect when material voxels touch across the face; a piece connects to a

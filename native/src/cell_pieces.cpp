@@ -1,6 +1,9 @@
 #include "cell_pieces.h"
 
+#include <larap/errors.h>
+
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -54,7 +57,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                             const std::vector<uint8_t>& marks, const RowMatrixX3d& V,
                             const std::vector<Eigen::Vector3i>& tris,
                             const std::vector<int32_t>& vertex_part,
-                            const std::vector<int64_t>& vertex_cells, int k) {
+                            const std::vector<int64_t>& vertex_cells, int k, int64_t max_voxel_bytes) {
   CellPieces out;
   const GridIndex g{dims};
 
@@ -125,6 +128,18 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   const int64_t nb = int64_t(cand_surf.size());
   if (nb == 0) return out;
   const int64_t k3 = int64_t(k) * k * k;
+  // Per analysed cell: its voxels, and (cells of several parts) 6 k^2 face keys of 4 bytes.
+  const double cell_bytes = double(k3) + 24.0 * k * k;
+  if (double(nb) * cell_bytes > double(max_voxel_bytes)) {
+    char msg[320];
+    std::snprintf(msg, sizeof msg,
+                  "cell splitting would analyse %lld cells at split_resolution %d: about %.0f MiB of voxels "
+                  "(%.1f MiB left of the limit); use a lower split_resolution, fewer cells, or "
+                  "split_cells=False",
+                  static_cast<long long>(nb), k, double(nb) * cell_bytes / (1024.0 * 1024.0),
+                  double(std::max<int64_t>(max_voxel_bytes, 0)) / (1024.0 * 1024.0));
+    throw OutOfMemory(msg);
+  }
   out.voxels = nb * k3;
   std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
   const double hv = h / k;

@@ -40,6 +40,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <limits>
 #include <utility>
 #include <vector>
 
@@ -77,6 +78,8 @@ struct CellPieces {
   int64_t voxels = 0;             // voxels analysed (for the record)
 };
 
+// Throws OutOfMemory when the analysed cells' voxels and face tables (k^3 + 24 k^2 bytes each)
+// would exceed max_voxel_bytes.
 // Grid: cells of size h from `origin`, `dims` per axis, marks as above (kSurface, kInside and
 // kVertex final). vertex_part: the part of each vertex (mesh_parts.h). vertex_cells: grid index of
 // each vertex's cell.
@@ -84,6 +87,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                             const std::vector<uint8_t>& marks, const RowMatrixX3d& V,
                             const std::vector<Eigen::Vector3i>& tris,
                             const std::vector<int32_t>& vertex_part,
-                            const std::vector<int64_t>& vertex_cells, int k);
+                            const std::vector<int64_t>& vertex_cells, int k,
+                            int64_t max_voxel_bytes = std::numeric_limits<int64_t>::max());
 
 }  // namespace larap

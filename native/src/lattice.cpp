@@ -451,7 +451,8 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   CellPieces pieces;  // none: the plain lattice
   if (options.split_cells)
     pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
-                              mesh_parts(mesh), grid.vertex_cells, options.split_resolution);
+                              mesh_parts(mesh), grid.vertex_cells, options.split_resolution,
+                              max_bytes - Lattice::estimate_bytes(grid.dims));
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
   build_stencil_shell(lat);
   return lat;

@@ -133,7 +133,10 @@ class Deformer:
         them reaches the outside through the analysed cells; surfaces of separate parts (not
         joined by faces or shared vertex positions) separate closer: measured from 1.25 /
         split_resolution along an axis to about 2.7 / split_resolution at the worst angle (0.05
-        to 0.11 cell at 24; docs/method.md).
+        to 0.11 cell at 24; docs/method.md). Each analysed cell takes split_resolution^3 bytes
+        while the lattice is built.
+    max_bytes: memory the lattice's grid and cell splitting's voxels may take (default half the
+        machine's memory); over it, MemoryError says what to lower, before allocating.
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,

@@ -148,3 +148,13 @@ def test_solve_on_device_needs_cuda():
         pytest.skip("runs on a GPU")
     with pytest.raises(RuntimeError, match="CUDA"):
         d.solve_on_device(V0[:5])
+
+
+def test_cell_splitting_over_the_memory_limit_is_a_clear_error():
+    """The analysed cells' voxels (split_resolution^3 bytes each) count against max_bytes: over it,
+    a MemoryError naming what to lower, never an allocation that takes the machine down."""
+    V, F = shapes.concat(shapes.box((0, 0, 0), (4, 1, 1), 4), shapes.box((0, 0, 1.3), (4, 1, 2.3), 4))
+    with pytest.raises(MemoryError, match="split_resolution 64"):
+        larap.Deformer(V, F, cell_size=1.0, split_resolution=64, max_bytes=200_000)
+    d = larap.Deformer(V, F, cell_size=1.0, split_resolution=8, max_bytes=200_000)  # 512 bytes a cell
+    assert d.num_cells > larap.Deformer(V, F, cell_size=1.0, split_cells=False).num_cells  # it did split

@@ -22,6 +22,15 @@ class TopologyChanged(LarapError):
     pass
 
 
+def memory_message(engine_text):
+    """The engine's MemoryError in the panel's words: what would not fit, and the settings of the
+    panel that lower it (the engine names its Python keywords, which the panel does not show)."""
+    what = engine_text.split(";")[0].strip() or "the lattice is too large"
+    if what.startswith("cell splitting"):
+        return "out of memory (%s); use fewer Cells or a larger Cell Size, or turn off Parts Apart" % what
+    return "out of memory (%s); use fewer Cells or a larger Cell Size" % what
+
+
 def check_object(obj, *, need_bound=False, allow_edit_mode=False):
     if obj is None:
         raise LarapError("No active object")
@@ -56,6 +65,6 @@ def engine_errors(what):
     except LarapError:
         raise
     except MemoryError as exc:
-        raise LarapError("%s: out of memory (%s); use fewer lattice cells" % (what, exc or "lattice too large"))
+        raise LarapError("%s: %s" % (what, memory_message(str(exc))))
     except ENGINE_ERRORS as exc:
         raise LarapError("%s: %s" % (what, exc))

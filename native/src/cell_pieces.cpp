@@ -127,17 +127,63 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
   const int64_t nb = int64_t(cand_surf.size());
   if (nb == 0) return out;
+  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate
+  triangles_of(sp, tris, cand_surf, cand_offsets, cand_tris);
+  // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one
+  // with several tells their surfaces apart (part_pieces.h). part_of[b]: the cell's one part,
+  // kSeveral, or kNoPart (no triangle: no surface voxel).
+  constexpr int32_t kSeveral = -1, kNoPart = -2;
+  std::vector<int32_t> part_of(static_cast<size_t>(nb), kNoPart);
+  bool by_part = false;  // some cell holds several parts, or two cells different ones
+  int32_t seen = kNoPart;
+  for (int64_t b = 0; b < nb; ++b) {
+    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
+      const int32_t p = vertex_part[tris[cand_tris[q]][0]];
+      part_of[b] = part_of[b] == kNoPart || part_of[b] == p ? p : kSeveral;
+    }
+    if (part_of[b] == kSeveral) by_part = true;
+    else if (part_of[b] != kNoPart) {
+      if (seen != kNoPart && seen != part_of[b]) by_part = true;
+      seen = part_of[b];
+    }
+  }
   const int64_t k3 = int64_t(k) * k * k;
-  // Per analysed cell: its voxels, and (cells of several parts) 6 k^2 face keys of 4 bytes.
-  const double cell_bytes = double(k3) + 24.0 * k * k;
-  if (double(nb) * cell_bytes > double(max_voxel_bytes)) {
-    char msg[320];
+  // Memory, an upper bound before anything of the size of the voxels is allocated: per analysed
+  // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
+  // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
+  // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
+  // (a flood stack or the part sets' offsets, last-part table and union-find: 16 k^3); and the
+  // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over), 32
+  // bytes per vertex in one (its piece, found and returned).
+  const double k2d = double(k) * k;
+  int64_t held_vertices = 0;
+  for (const int64_t c : vertex_cells) held_vertices += surf_of[c] >= 0 && block_of_surf[surf_of[c]] >= 0;
+  double bytes = double(nb) * (double(k3) + 1024.0) + 32.0 * double(held_vertices) +
+                 16.0 * double(k3) * std::max(1, num_threads());
+  if (by_part)
+    for (int64_t b = 0; b < nb; ++b) {
+      if (part_of[b] != kSeveral) {
+        bytes += 6.0 * k2d;
+        continue;
+      }
+      std::vector<int32_t> ps;
+      for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) ps.push_back(vertex_part[tris[cand_tris[q]][0]]);
+      std::sort(ps.begin(), ps.end());
+      const double np = double(std::unique(ps.begin(), ps.end()) - ps.begin());
+      // Distinct face sets: at most one per face voxel, and at most the 2^P - P sets of parts
+      // other than the single parts; each 4 bytes of offset and up to P parts, held twice while
+      // they are gathered.
+      const double nsets = std::min(6.0 * k2d, std::ldexp(1.0, int(std::min(np, 60.0))) - np);
+      bytes += 24.0 * k2d + 2.0 * nsets * (4.0 + 4.0 * np);
+    }
+  if (bytes > double(max_voxel_bytes)) {
+    char msg[400];
     std::snprintf(msg, sizeof msg,
-                  "cell splitting would analyse %lld cells at split_resolution %d: about %.0f MiB of voxels "
-                  "(%.1f MiB left of the limit); use a lower split_resolution, fewer cells, or "
-                  "split_cells=False",
-                  static_cast<long long>(nb), k, double(nb) * cell_bytes / (1024.0 * 1024.0),
-                  double(std::max<int64_t>(max_voxel_bytes, 0)) / (1024.0 * 1024.0));
+                  "cell splitting would analyse %lld cells: up to %.1f MiB of voxels and face tables, over "
+                  "the %.1f MiB the grid leaves of the memory limit; use a lower split_resolution (%d now), "
+                  "a larger cell size, or split_cells=False",
+                  static_cast<long long>(nb), bytes / (1024.0 * 1024.0),
+                  double(std::max<int64_t>(max_voxel_bytes, 0)) / (1024.0 * 1024.0), k);
     throw OutOfMemory(msg);
   }
   out.voxels = nb * k3;
@@ -150,8 +196,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   };
   auto vindex = [k](int i, int j, int l) { return i + int64_t(k) * (j + int64_t(k) * l); };
 
-  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate
-  triangles_of(sp, tris, cand_surf, cand_offsets, cand_tris);
   parallel_for(nb, [&](int64_t b) {
     const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     const Eigen::Vector3d corner = origin + h * X.cast<double>();
@@ -260,34 +304,19 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       if (gained[size_t(b)]) changed.push_back(b);
   }
 
-  // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one
-  // with several tells their surfaces apart (part_pieces.h). part_of[b]: the cell's one part,
-  // kSeveral, or kNoPart (no triangle: no surface voxel).
-  constexpr int32_t kSeveral = -1, kNoPart = -2;
-  std::vector<int32_t> part_of(static_cast<size_t>(nb), kNoPart);
-  bool by_part = false;  // some cell holds several parts, or two cells different ones
-  int32_t seen = kNoPart;
-  for (int64_t b = 0; b < nb; ++b) {
-    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
-      const int32_t p = vertex_part[tris[cand_tris[q]][0]];
-      part_of[b] = part_of[b] == kNoPart || part_of[b] == p ? p : kSeveral;
-    }
-    if (part_of[b] == kSeveral) by_part = true;
-    else if (part_of[b] != kNoPart) {
-      if (seen != kNoPart && seen != part_of[b]) by_part = true;
-      seen = part_of[b];
-    }
-  }
   // What the links across faces need of a face voxel when parts are told apart (by_part). Face
   // voxel (f, u, w) is f * k^2 + w * k + u, as face_voxel names it. Cells of one part keep a byte
   // per face voxel (face_kind: kAirVoxel, kSurfaceVoxel, kEnclosedVoxel); cells of several a key
-  // (face_key: kAir, kEnclosed, a part >= 0, or -3 - i for the i-th of the cell's face_sets, a
-  // voxel hit by several parts).
+  // (face_key: kAir, kEnclosed, a part >= 0, or -3 - i for the i-th of the cell's face sets, a
+  // voxel hit by several parts: parts[offsets[i], offsets[i + 1]) of its FaceSets).
   constexpr uint8_t kAirVoxel = 0, kSurfaceVoxel = 1, kEnclosedVoxel = 2;
   constexpr int32_t kAir = -1, kEnclosed = -2;
   std::vector<std::vector<uint8_t>> face_kind(static_cast<size_t>(by_part ? nb : 0));
   std::vector<std::vector<int32_t>> face_key(static_cast<size_t>(by_part ? nb : 0));
-  std::vector<std::vector<std::vector<int32_t>>> face_sets(static_cast<size_t>(by_part ? nb : 0));
+  struct FaceSets {
+    std::vector<int32_t> offsets, parts;
+  };
+  std::vector<FaceSets> face_sets(static_cast<size_t>(by_part ? nb : 0));
   const int64_t k2 = int64_t(k) * k;
   auto for_face_voxels = [&](auto&& visit) {  // visit(face voxel index f * k^2 + w * k + u, voxel)
     for (int f = 0; f < 6; ++f)
@@ -309,16 +338,36 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
                                       cand_offsets[b + 1], vertex_part);
       auto& keys = face_key[b];
       keys.resize(size_t(6 * k2));
+      // The distinct sets of the face voxels hit by several parts, each kept once (two or three
+      // parts meeting along a face give one or a few): the memory bound above counts on it.
+      FaceSets fs;
+      fs.offsets.push_back(0);
+      int32_t last = -1;  // the set found last (neighbouring voxels mostly repeat it)
+      auto same = [&](int32_t i, const int32_t* p0, const int32_t* p1) {
+        return fs.offsets[i + 1] - fs.offsets[i] == p1 - p0 && std::equal(p0, p1, fs.parts.begin() + fs.offsets[i]);
+      };
       for_face_voxels([&](int64_t idx, int64_t vi) {
         int32_t& key = keys[size_t(idx)];
         if (v[vi] == 2) key = kAir;
         else if (v[vi] == 0) key = kEnclosed;
         else if (sets.end(vi) - sets.begin(vi) == 1) key = *sets.begin(vi);
         else {
-          key = -3 - int32_t(face_sets[b].size());
-          face_sets[b].emplace_back(sets.begin(vi), sets.end(vi));
+          const int32_t* p0 = sets.begin(vi);
+          const int32_t* p1 = sets.end(vi);
+          const int32_t n = int32_t(fs.offsets.size() - 1);
+          int32_t i = last >= 0 && same(last, p0, p1) ? last : 0;
+          while (i < n && !same(i, p0, p1)) ++i;
+          if (i == n) {
+            fs.parts.insert(fs.parts.end(), p0, p1);
+            fs.offsets.push_back(int32_t(fs.parts.size()));
+          }
+          key = -3 - i;
+          last = i;
         }
       });
+      fs.offsets.shrink_to_fit();
+      fs.parts.shrink_to_fit();
+      face_sets[b] = std::move(fs);
       np = pieces_by_part(v, k, sets, size);
       pieces[b] = std::max(1, std::min(np, 253));
       return;
@@ -365,8 +414,9 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // range lives as long as the caller's key), else the cell's face set.
   auto parts_of = [&](int64_t b, const int32_t* key) -> std::pair<const int32_t*, const int32_t*> {
     if (*key >= 0) return {key, key + 1};
-    const std::vector<int32_t>& set = face_sets[b][size_t(-3 - *key)];
-    return {set.data(), set.data() + set.size()};
+    const FaceSets& fs = face_sets[b];
+    const size_t i = size_t(-3 - *key);
+    return {fs.parts.data() + fs.offsets[i], fs.parts.data() + fs.offsets[i + 1]};
   };
   auto touch = [&](int64_t b, int32_t ka, int64_t yb, int32_t kc) {  // enclosed, or a part in common
     if (ka == kEnclosed || kc == kEnclosed) return true;

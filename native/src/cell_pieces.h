@@ -78,8 +78,10 @@ struct CellPieces {
   int64_t voxels = 0;             // voxels analysed (for the record)
 };
 
-// Throws OutOfMemory when the analysed cells' voxels and face tables (k^3 + 24 k^2 bytes each)
-// would exceed max_voxel_bytes.
+// Throws OutOfMemory, before allocating them, when an upper bound of what the analysis holds would
+// exceed max_voxel_bytes: k^3 bytes of voxels per analysed cell; when parts are told apart, face
+// tables of 6 k^2 bytes per cell of one part and 24 k^2 + 6 k^2 (4 + 4 P) per cell of P parts; and
+// 16 k^3 of scratch per worker thread.
 // Grid: cells of size h from `origin`, `dims` per axis, marks as above (kSurface, kInside and
 // kVertex final). vertex_part: the part of each vertex (mesh_parts.h). vertex_cells: grid index of
 // each vertex's cell.

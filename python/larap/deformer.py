@@ -134,7 +134,7 @@ class Deformer:
         joined by faces or shared vertex positions) separate closer: measured from 1.25 /
         split_resolution along an axis to about 2.7 / split_resolution at the worst angle (0.05
         to 0.11 cell at 24; docs/method.md). Each analysed cell takes split_resolution^3 bytes
-        while the lattice is built.
+        while the lattice is built, a few times more where several parts meet in it.
     max_bytes: memory the lattice's grid and cell splitting's voxels may take (default half the
         machine's memory); over it, MemoryError says what to lower, before allocating.
     """

@@ -597,3 +597,28 @@ def test_solve_apply_bake_failures_leave_mesh_untouched(core, monkeypatch):
             for fc in obj.data.shape_keys.animation_data.action.fcurves] == fcurves
     monkeypatch.undo()
     assert bpy.ops.larap.bake_animation(frame_start=1, frame_end=5) == {"FINISHED"}
+
+
+def test_cell_splitting_out_of_memory_names_the_panel_settings(core, monkeypatch):
+    """The engine's MemoryError for cell splitting names its Python keywords (split_resolution,
+    split_cells); the add-on's report names what the panel shows instead (Cells, Cell Size, Parts
+    Apart). The engine's own text comes from a real bind of two close boxes under a tight limit."""
+    import larap
+    from larap import shapes
+    V, F = shapes.concat(shapes.box((0, 0, 0), (4, 1, 1), 4), shapes.box((0, 0, 1.3), (4, 1, 2.3), 4))
+    with pytest.raises(MemoryError) as caught:
+        larap.Deformer(V, F, cell_size=1.0, split_resolution=64, max_bytes=200_000)
+    engine_text = str(caught.value)
+    assert engine_text.startswith("cell splitting") and "split_resolution" in engine_text
+    obj, rest, left, right, targets = bar_with_handles(core)
+    bpy.ops.larap.unbind()
+
+    def init(self, *a, **k):
+        raise MemoryError(engine_text)
+    monkeypatch.setattr(larap.Deformer, "__init__", init)
+    with pytest.raises(RuntimeError) as report:
+        bpy.ops.larap.bind()
+    text = str(report.value)
+    assert "out of memory" in text and "Parts Apart" in text and "Cell Size" in text, text
+    assert "split_resolution" not in text and "split_cells" not in text, text
+    assert not obj.larap.bound

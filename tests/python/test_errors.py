@@ -151,10 +151,36 @@ def test_solve_on_device_needs_cuda():
 
 
 def test_cell_splitting_over_the_memory_limit_is_a_clear_error():
-    """The analysed cells' voxels (split_resolution^3 bytes each) count against max_bytes: over it,
-    a MemoryError naming what to lower, never an allocation that takes the machine down."""
+    """What cell splitting holds (split_resolution^3 bytes of voxels per analysed cell and more)
+    counts against max_bytes with the grid: over it, a MemoryError naming the analysed cells and
+    what to lower, never an allocation that takes the machine down. The smallest limit accepted
+    grows by at least split_resolution^3 per analysed cell over the plain lattice's (a limit
+    between one cell's voxels and all of them is refused). Upper bound on the real memory:
+    tests/cpp/memory/test_split_memory.cpp."""
+    import re
     V, F = shapes.concat(shapes.box((0, 0, 0), (4, 1, 1), 4), shapes.box((0, 0, 1.3), (4, 1, 2.3), 4))
-    with pytest.raises(MemoryError, match="split_resolution 64"):
-        larap.Deformer(V, F, cell_size=1.0, split_resolution=64, max_bytes=200_000)
-    d = larap.Deformer(V, F, cell_size=1.0, split_resolution=8, max_bytes=200_000)  # 512 bytes a cell
-    assert d.num_cells > larap.Deformer(V, F, cell_size=1.0, split_cells=False).num_cells  # it did split
+
+    def smallest_limit(**kw):  # and the message just under it
+        lo, hi, message = 1, 1 << 33, None
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            try:
+                larap.Deformer(V, F, cell_size=1.0, max_bytes=mid, **kw)
+                hi = mid
+            except MemoryError as exc:
+                lo, message = mid, str(exc)
+        return hi, message
+
+    plain, _ = smallest_limit(split_cells=False)
+    limits = {}
+    for k in (8, 24):
+        limits[k], message = smallest_limit(split_resolution=k)
+        assert "split_resolution (%d now)" % k in message and "split_cells=False" in message, message
+        cells = int(re.search(r"analyse (\d+) cells", message).group(1))
+        assert cells >= 8  # the cells between the two boxes
+        assert limits[k] - plain >= cells * k ** 3, (k, limits[k], plain, cells)
+        d = larap.Deformer(V, F, cell_size=1.0, split_resolution=k, max_bytes=limits[k])
+        assert d.num_cells > larap.Deformer(V, F, cell_size=1.0, split_cells=False).num_cells  # it split
+    assert plain < limits[8] < limits[24]
+
+

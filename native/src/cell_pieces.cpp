@@ -156,17 +156,20 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over), 32
   // bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
-  int64_t held_vertices = 0;
-  for (const int64_t c : vertex_cells) held_vertices += surf_of[c] >= 0 && block_of_surf[surf_of[c]] >= 0;
-  double bytes = double(nb) * (double(k3) + 1024.0) + 32.0 * double(held_vertices) +
+  const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells
+    const int32_t s = surf_of[vertex_cells[vtx]];
+    return s >= 0 && block_of_surf[s] >= 0;
+  });
+  double bytes = double(nb) * (double(k3) + 1024.0) + 32.0 * double(held.size()) +
                  16.0 * double(k3) * std::max(1, num_threads());
+  std::vector<int32_t> ps;  // the parts of a cell
   if (by_part)
     for (int64_t b = 0; b < nb; ++b) {
       if (part_of[b] != kSeveral) {
         bytes += 6.0 * k2d;
         continue;
       }
-      std::vector<int32_t> ps;
+      ps.clear();
       for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) ps.push_back(vertex_part[tris[cand_tris[q]][0]]);
       std::sort(ps.begin(), ps.end());
       const double np = double(std::unique(ps.begin(), ps.end()) - ps.begin());
@@ -554,10 +557,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4);
 
   // Vertices: the piece of the voxel holding them (the nearest material voxel for a loose vertex).
-  const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells
-    const int32_t s = surf_of[vertex_cells[vtx]];
-    return s >= 0 && block_of_surf[s] >= 0;
-  });
   std::vector<int32_t> held_piece(held.size(), 0);
   parallel_for(int64_t(held.size()), [&](int64_t i) {
     const int64_t vtx = held[i], cid = vertex_cells[vtx];

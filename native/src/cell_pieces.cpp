@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <functional>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -13,6 +14,7 @@
 #include "parallel.h"
 #include "part_pieces.h"
 #include "surface_patches.h"
+#include "voxel_inside.h"
 
 namespace larap {
 namespace {
@@ -148,11 +150,92 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
   }
   const int64_t k3 = int64_t(k) * k * k;
+  // Rows: the voxels' inside test (voxel_inside.h) casts rays the length of the grid along the
+  // rows of cells through each analysed cell, one row per axis; every cell of a row shares its
+  // rays, so each row's crossings are found once, with the triangles of the row's surface cells.
+  // rows[a]: the analysed cells of axis a's rows, by row (the grid index of its cell 0) and place.
+  struct RowCell {
+    int64_t row;
+    int32_t along;  // the cell's index along the row
+    int32_t b;      // the analysed cell
+  };
+  std::vector<RowCell> rows[3];
+  std::vector<std::vector<int32_t>> row_start(3);  // per axis: where each row begins in rows[a]
+  for (int a = 0; a < 3; ++a) {
+    rows[a].resize(size_t(nb));
+    parallel_for(nb, [&](int64_t b) {
+      Eigen::Vector3i S = g.coords(surf_cells[cand_surf[b]]);
+      const int32_t along = S[a];
+      S[a] = 0;
+      rows[a][size_t(b)] = {g.index(S), along, int32_t(b)};
+    }, 4096);
+    std::sort(rows[a].begin(), rows[a].end(), [](const RowCell& x, const RowCell& y) {
+      return x.row != y.row ? x.row < y.row : x.along < y.along;
+    });
+    for (int32_t i = 0; i < int32_t(nb); ++i)
+      if (i == 0 || rows[a][size_t(i)].row != rows[a][size_t(i) - 1].row) row_start[a].push_back(i);
+    row_start[a].push_back(int32_t(nb));
+  }
+  // The surface cells along every row (CSR per row, axis by axis, as indices into row_surf) and
+  // the triangles of each.
+  std::vector<int32_t> row_offsets{0}, row_cells, row_surf;
+  for (int a = 0; a < 3; ++a)
+    for (size_t r = 0; r + 1 < row_start[a].size(); ++r) {
+      Eigen::Vector3i C = g.coords(rows[a][size_t(row_start[a][r])].row);
+      for (C[a] = 0; C[a] < dims[a]; ++C[a]) {
+        const int32_t s = surf_of[g.index(C)];
+        if (s >= 0) row_cells.push_back(s);
+      }
+      row_offsets.push_back(int32_t(row_cells.size()));
+    }
+  row_surf = row_cells;
+  std::sort(row_surf.begin(), row_surf.end());
+  row_surf.erase(std::unique(row_surf.begin(), row_surf.end()), row_surf.end());
+  parallel_for(int64_t(row_cells.size()), [&](int64_t i) {
+    row_cells[size_t(i)] =
+        int32_t(std::lower_bound(row_surf.begin(), row_surf.end(), row_cells[size_t(i)]) - row_surf.begin());
+  }, 4096);
+  std::vector<int32_t> rs_offsets, rs_tris;
+  triangles_of(sp, tris, row_surf, rs_offsets, rs_tris);
+  const double hv = h / k;
+  auto row_rays = [&](int a, int64_t row) {
+    return RowRays(a, origin + h * g.coords(row).cast<double>(), hv, k);
+  };
+  auto row_triangles = [&](size_t row) {  // the triangles of a row's surface cells, ascending
+    std::vector<int32_t> ids;
+    size_t n = 0;
+    for (int32_t q = row_offsets[row]; q < row_offsets[row + 1]; ++q)
+      n += size_t(rs_offsets[size_t(row_cells[size_t(q)]) + 1] - rs_offsets[size_t(row_cells[size_t(q)])]);
+    ids.reserve(n);
+    for (int32_t q = row_offsets[row]; q < row_offsets[row + 1]; ++q) {
+      const int32_t i = row_cells[size_t(q)];
+      ids.insert(ids.end(), rs_tris.begin() + rs_offsets[size_t(i)], rs_tris.begin() + rs_offsets[size_t(i) + 1]);
+    }
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    return ids;
+  };
+  // Each row's scratch: its triangles (repeats included) and the crossings they can give.
+  std::vector<double> row_bytes(row_offsets.size() - 1);
+  {
+    size_t r0 = 0;
+    for (int a = 0; a < 3; ++a) {
+      const int64_t nr = int64_t(row_start[a].size()) - 1;
+      parallel_for(nr, [&](int64_t r) {
+        const RowRays rays = row_rays(a, rows[a][size_t(row_start[a][size_t(r)])].row);
+        const std::vector<int32_t> ids = row_triangles(r0 + size_t(r));
+        row_bytes[r0 + size_t(r)] = 8.0 * (double(k) * k + 1) + 4.0 * double(ids.capacity()) +
+                                    RowRays::kBytesPerCrossing * double(rays.max_crossings(ids.data(), ids.size(), V, tris));
+      }, 16);
+      r0 += size_t(nr);
+    }
+  }
   // Memory, an upper bound before anything of the size of the voxels is allocated: per analysed
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
-  // (a flood stack or the part sets' offsets, last-part table and union-find: 16 k^3); and the
+  // (a flood stack or the part sets' offsets, last-part table and union-find: 16 k^3), or before
+  // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
   // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over), 32
   // bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
@@ -160,8 +243,16 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     const int32_t s = surf_of[vertex_cells[vtx]];
     return s >= 0 && block_of_surf[s] >= 0;
   });
-  double bytes = double(nb) * (double(k3) + 1024.0) + 32.0 * double(held.size()) +
-                 16.0 * double(k3) * std::max(1, num_threads());
+  const int threads = std::max(1, num_threads());
+  double bytes = double(nb) * (double(k3) + 1024.0) + 32.0 * double(held.size());
+  {
+    const size_t top = std::min(row_bytes.size(), size_t(threads));
+    std::partial_sort(row_bytes.begin(), row_bytes.begin() + top, row_bytes.end(), std::greater<double>());
+    double rows_scratch = 0;
+    for (size_t i = 0; i < top; ++i) rows_scratch += row_bytes[i];
+    bytes += std::max(16.0 * double(k3) * threads, rows_scratch);  // the rows' is freed before the cells'
+    std::vector<double>().swap(row_bytes);
+  }
   std::vector<int32_t> ps;  // the parts of a cell
   if (by_part)
     for (int64_t b = 0; b < nb; ++b) {
@@ -191,13 +282,44 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }
   out.voxels = nb * k3;
   std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3
-  const double hv = h / k;
   auto block_of_cell = [&](const Eigen::Vector3i& c) -> int64_t {
     if (!g.contains(c)) return -1;
     const int32_t s = surf_of[g.index(c)];
     return s >= 0 ? block_of_surf[s] : -1;
   };
   auto vindex = [k](int i, int j, int l) { return i + int64_t(k) * (j + int64_t(k) * l); };
+
+  // Inside: voxels that ray parity puts inside the mesh (voxel_inside.h) are held out of the air's
+  // flood (kHeld), so air entering a solid through a hole in its surface does not empty it. Row by
+  // row, axis by axis (a cell is in one row per axis, so no two rows of an axis write one cell),
+  // the votes add up in the voxels themselves, before the surface's are marked.
+  constexpr uint8_t kHeld = 255;
+  {
+    size_t r0 = 0;
+    for (int a = 0; a < 3; ++a) {
+      const int64_t nr = int64_t(row_start[a].size()) - 1;
+      parallel_for(nr, [&](int64_t r) {
+        std::vector<int32_t> ids = row_triangles(r0 + size_t(r));
+        RowRays rays = row_rays(a, rows[a][size_t(row_start[a][size_t(r)])].row);
+        rays.cross(ids.data(), ids.size(), V, tris, vertex_part);
+        std::vector<int32_t>().swap(ids);
+        for (int32_t i = row_start[a][size_t(r)]; i < row_start[a][size_t(r) + 1]; ++i) {
+          uint8_t* v = vox.data() + int64_t(rows[a][size_t(i)].b) * k3;
+          rays.votes(rows[a][size_t(i)].along, [v](int64_t vi, int n) {
+            v[vi] = uint8_t(v[vi] + n);
+          });
+        }
+      }, 1);
+      r0 += size_t(nr);
+    }
+    parallel_for(nb, [&](int64_t b) {
+      uint8_t* v = vox.data() + b * k3;
+      for (int64_t vi = 0; vi < k3; ++vi)
+        v[vi] = v[vi] >= kInsideVotes ? kHeld : 0;
+    }, 4);
+  }
+  for (int a = 0; a < 3; ++a) std::vector<RowCell>().swap(rows[a]);
+  std::vector<int32_t>().swap(rs_tris);
 
   parallel_for(nb, [&](int64_t b) {
     const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
@@ -206,7 +328,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
       const Eigen::Vector3i& t = tris[cand_tris[q]];
       for_each_voxel_hit(corner, hv, k, V.row(t[0]).transpose(), V.row(t[1]).transpose(), V.row(t[2]).transpose(),
-                         0.0, [v](int64_t vi) { return v[vi] != 0; }, [v](int64_t vi) { v[vi] = 1; });
+                         0.0, [v](int64_t vi) { return v[vi] == 1; }, [v](int64_t vi) { v[vi] = 1; });
     }
   }, 4);
 
@@ -306,6 +428,31 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     for (int64_t b : touched)
       if (gained[size_t(b)]) changed.push_back(b);
   }
+
+  // Held voxels that touch the surface in their cell, directly or through other held voxels, are
+  // enclosed material. The rest are cores that the air cut off from the cell's surface where two
+  // holes see them (4 votes let it in around them): air. A core that reaches the surface only
+  // through a neighbouring cell becomes air too; keeping it would make it a piece of its own in
+  // its cell (a copy holding no vertex), joined to the skin's copy only far away.
+  parallel_for(nb, [&](int64_t b) {
+    uint8_t* v = vox.data() + b * k3;
+    std::vector<int32_t> stack;
+    auto take = [&](int32_t ni) {
+      if (v[ni] == kHeld) {
+        v[ni] = 0;
+        stack.push_back(ni);
+      }
+    };
+    for (int32_t vi = 0; vi < int32_t(k3); ++vi)
+      if (v[vi] == 1) steps.each(vi, take);
+    while (!stack.empty()) {
+      const int32_t vi = stack.back();
+      stack.pop_back();
+      steps.each(vi, take);
+    }
+    for (int64_t vi = 0; vi < k3; ++vi)
+      if (v[vi] == kHeld) v[vi] = 2;
+  }, 4);
 
   // What the links across faces need of a face voxel when parts are told apart (by_part). Face
   // voxel (f, u, w) is f * k^2 + w * k + u, as face_voxel names it. Cells of one part keep a byte

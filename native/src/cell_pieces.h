@@ -11,15 +11,18 @@
 //      no inside cell joins them), the surface cells among them are analysed too. Repeated until
 //      nothing changes.
 // 2. Voxels. Every candidate cell gets k^3 voxels (k = split_resolution). Surface voxels: a
-//    triangle overlaps the voxel (the exact test of geometry.h, found per triangle by voxel_hits.h). Air: non-surface voxels reached by a
-//    6-connected flood fill through the candidate cells, started from the faces that border a
-//    cell that is neither surface nor inside (each cell floods in parallel, then air crosses the
-//    faces of the cells that gained some, in rounds). Air reaches a candidate only through other
-//    candidates: space between two surfaces that opens to the outside only through surface cells
-//    that are not analysed is material. It also enters a solid through any hole in its surface
-//    wider than about a voxel, and empties the solid's analysed cells (a known defect: the voxels
-//    need an inside test, docs/method.md). Material: everything else (so sheets, soups, open and
-//    flipped meshes all have material: at least their surface voxels).
+//    triangle overlaps the voxel (the exact test of geometry.h, found per triangle by voxel_hits.h).
+//    Inside: voxels that at least 5 of their 6 axis rays find inside the mesh by parity
+//    (voxel_inside.h, a row of cells' rays found once) are held out of the flood, so air that enters
+//    a solid through a hole in its surface (an eye socket, an open bottom) does not empty it; after
+//    the flood, held voxels that reach a surface voxel of their cell through held voxels are
+//    material, and the rest (cores the air cut off, where two holes see them) air. Air: the other
+//    non-surface voxels reached by a 6-connected flood fill through the candidate cells, started
+//    from the faces that border a cell that is neither surface nor inside (each cell floods in
+//    parallel, then air crosses the faces of the cells that gained some, in rounds). Air reaches a
+//    candidate only through other candidates: space between two surfaces that opens to the outside
+//    only through surface cells that are not analysed is material. Material: everything else (so
+//    sheets, soups, open and flipped meshes all have material: at least their surface voxels).
 // 3. Pieces: 6-connected components of a cell's material voxels. Two pieces of face-adjacent
 //    analysed cells connect when material voxels touch across the face; a piece connects to a
 //    non-analysed kept neighbour when it has material on the shared face.
@@ -81,7 +84,8 @@ struct CellPieces {
 // Throws OutOfMemory, before allocating them, when an upper bound of what the analysis holds would
 // exceed max_voxel_bytes: k^3 bytes of voxels per analysed cell; when parts are told apart, face
 // tables of 6 k^2 bytes per cell of one part and 24 k^2 + 6 k^2 (4 + 4 P) per cell of P parts; and
-// 16 k^3 of scratch per worker thread.
+// per worker thread 16 k^3 of scratch or, earlier, the row of rays it is crossing (the inside test:
+// its triangles, and 32 bytes per crossing they can give), whichever is more.
 // Grid: cells of size h from `origin`, `dims` per axis, marks as above (kSurface, kInside and
 // kVertex final). vertex_part: the part of each vertex (mesh_parts.h). vertex_cells: grid index of
 // each vertex's cell.

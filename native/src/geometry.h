@@ -41,4 +41,22 @@ inline bool triangle_box_overlap(const Eigen::Vector3d& centre, const Eigen::Vec
   return true;
 }
 
+// Where the line through (b, c) = (qb, qc) along axis a (b = a + 1, c = a + 2, mod 3) crosses the
+// triangle p, edges and corners included: writes the a coordinate into `at`. False when the line
+// misses it; a triangle parallel to the line (zero area seen along a) is never crossed.
+inline bool axis_line_crossing(const Eigen::Vector3d (&p)[3], int a, double qb, double qc, double& at) {
+  const int b = (a + 1) % 3, c = (a + 2) % 3;
+  double w[3];
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Vector3d& u = p[(k + 1) % 3];
+    const Eigen::Vector3d& v = p[(k + 2) % 3];
+    w[k] = (u[b] - qb) * (v[c] - qc) - (v[b] - qb) * (u[c] - qc);
+  }
+  if (!((w[0] >= 0 && w[1] >= 0 && w[2] >= 0) || (w[0] <= 0 && w[1] <= 0 && w[2] <= 0))) return false;
+  const double s = w[0] + w[1] + w[2];
+  if (s == 0.0) return false;
+  at = (w[0] * p[0][a] + w[1] * p[1][a] + w[2] * p[2][a]) / s;
+  return true;
+}
+
 }  // namespace larap::geometry

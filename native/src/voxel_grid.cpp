@@ -135,19 +135,9 @@ static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
       if (area == 0.0) continue;  // parallel to the ray
       for (int jc = jc0; jc <= jc1; ++jc)
         for (int jb = jb0; jb <= jb1; ++jb) {
-          const double qb = jb + jitter_b, qc = jc + jitter_c;
-          double w[3];
-          for (int k = 0; k < 3; ++k) {
-            const Eigen::Vector3d& u = p[(k + 1) % 3];
-            const Eigen::Vector3d& v = p[(k + 2) % 3];
-            w[k] = (u[b] - qb) * (v[c] - qc) - (v[b] - qb) * (u[c] - qc);
-          }
-          const bool inside = (w[0] >= 0 && w[1] >= 0 && w[2] >= 0) ||
-                              (w[0] <= 0 && w[1] <= 0 && w[2] <= 0);
-          if (!inside) continue;
-          const double s = w[0] + w[1] + w[2];
-          const double ta = (w[0] * p[0][a] + w[1] * p[1][a] + w[2] * p[2][a]) / s;
-          cols[size_t(jc) * nb + jb].push_back(ta);
+          double ta;
+          if (geometry::axis_line_crossing(p, a, jb + jitter_b, jc + jitter_c, ta))
+            cols[size_t(jc) * nb + jb].push_back(ta);
         }
     }
     parallel_for(int64_t(cols.size()), [&](int64_t col) {

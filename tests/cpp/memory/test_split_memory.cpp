@@ -134,7 +134,24 @@ PolygonMesh stacked_slabs(int n) {
   return m;
 }
 
+// Two boxes 0.02 apart in one cell (analysed), then, along the same row of cells along x, n boxes
+// each inside a cell of its own (not analysed; the grid's cells start at the mesh's lowest corner
+// less two cells of 0.25): the analysed cells' x rays cross 2 n faces, and the inside test's
+// crossings outweigh the voxels.
+PolygonMesh pair_before_a_row_of_boxes(int n) {
+  PolygonMesh m = gen::concat({gen::box({0.04, 0.04, 0.04}, {0.11, 0.2, 0.2}), gen::box({0.13, 0.04, 0.04}, {0.2, 0.2, 0.2})});
+  for (int i = 1; i <= n; ++i) m = gen::concat({m, gen::box({0.5 * i + 0.06, 0.06, 0.06}, {0.5 * i + 0.22, 0.2, 0.2})});
+  return m;
+}
+
 }  // namespace
+
+TEST(SplitMemory, ALongRowOfCellsStaysWithinTheBound) {
+  // A row's crossings (the voxels' inside test, voxel_inside.h) are held at once, per worker
+  // thread: here they are the most of the memory.
+  for (int k : {8, 24})
+    expect_bounded("a close pair, then 1000 boxes in its row", measure(pair_before_a_row_of_boxes(1000), 0.25, k), k);
+}
 
 TEST(SplitMemory, PartsTouchingStayWithinTheBound) {
   for (int k : {8, 24}) {

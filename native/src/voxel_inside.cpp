@@ -1,0 +1,130 @@
+#include "voxel_inside.h"
+
+#include <cmath>
+#include <limits>
+
+#include "geometry.h"
+
+namespace larap {
+namespace {
+
+constexpr double kJitterB = 0.5 + 1.3717e-6, kJitterC = 0.5 + 2.9153e-6;  // ray jb passes jb + kJitterB
+constexpr double kSame = 1e-7;  // crossings of one part closer than this (voxels) along a ray are one
+
+// A part's hash: never zero, distinct for distinct parts (splitmix64 is a bijection).
+uint64_t part_hash(int32_t part) {
+  uint64_t z = uint64_t(int64_t(part)) + 0x9E3779B97F4A7C15ull;
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  z ^= z >> 31;
+  return z ? z : 1;
+}
+
+// Twice the area of a triangle seen along axis a: zero when it is parallel to the rays.
+double seen_area(const Eigen::Vector3d (&p)[3], int a) {
+  const int b = (a + 1) % 3, c = (a + 2) % 3;
+  return (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) - (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
+}
+
+// The rays a triangle's box covers: [jb0, jb1] x [jc0, jc1], false when none. p in voxels from
+// the row's origin.
+bool ray_range(const Eigen::Vector3d (&p)[3], int a, int k, int& jb0, int& jb1, int& jc0, int& jc1) {
+  const int b = (a + 1) % 3, c = (a + 2) % 3;
+  const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - kJitterB;
+  const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - kJitterB;
+  const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - kJitterC;
+  const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - kJitterC;
+  if (!(bmax >= 0 && bmin <= k - 1 && cmax >= 0 && cmin <= k - 1)) return false;  // NaN-safe
+  jb0 = int(std::max(0.0, std::ceil(bmin)));
+  jb1 = int(std::min(double(k - 1), std::floor(bmax)));
+  jc0 = int(std::max(0.0, std::ceil(cmin)));
+  jc1 = int(std::min(double(k - 1), std::floor(cmax)));
+  return jb0 <= jb1 && jc0 <= jc1;
+}
+
+}  // namespace
+
+int64_t RowRays::max_crossings(const int32_t* ids, size_t n, const RowMatrixX3d& V,
+                               const std::vector<Eigen::Vector3i>& tris) const {
+  int64_t total = 0;
+  for (size_t q = 0; q < n; ++q) {
+    const Eigen::Vector3i& t = tris[size_t(ids[q])];
+    Eigen::Vector3d p[3];
+    for (int i = 0; i < 3; ++i) p[i] = (V.row(t[i]).transpose() - origin_) / hv_;
+    int jb0, jb1, jc0, jc1;
+    if (seen_area(p, a_) == 0.0 || !ray_range(p, a_, k_, jb0, jb1, jc0, jc1)) continue;
+    // Scanlines: the rays of each line jc that the triangle's shadow covers, widened by a
+    // billionth of a voxel so that what axis_line_crossing takes on an edge is counted.
+    const int b = (a_ + 1) % 3, c = (a_ + 2) % 3;
+    for (int jc = jc0; jc <= jc1; ++jc) {
+      const double qc = jc + kJitterC;
+      double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+      for (int e = 0; e < 3; ++e) {
+        const Eigen::Vector3d& u = p[e];
+        const Eigen::Vector3d& v = p[(e + 1) % 3];
+        if ((u[c] - qc) * (v[c] - qc) > 0) continue;
+        const double at = u[c] == v[c] ? u[b] : u[b] + (qc - u[c]) * (v[b] - u[b]) / (v[c] - u[c]);
+        lo = std::min({lo, at, u[c] == v[c] ? v[b] : at});
+        hi = std::max({hi, at, u[c] == v[c] ? v[b] : at});
+      }
+      const int j0 = std::max(jb0, int(std::ceil(lo - kJitterB - 1e-9)));
+      const int j1 = std::min(jb1, int(std::floor(hi - kJitterB + 1e-9)));
+      if (j1 >= j0) total += j1 - j0 + 1;
+    }
+  }
+  return total;
+}
+
+void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
+                    const std::vector<Eigen::Vector3i>& tris, const std::vector<int32_t>& vertex_part) {
+  const int a = a_, k = k_;
+  xs_.clear();
+  xs_.reserve(size_t(max_crossings(ids, n, V, tris)));  // no growth: what the memory check counts
+  for (size_t q = 0; q < n; ++q) {
+    const Eigen::Vector3i& t = tris[size_t(ids[q])];
+    Eigen::Vector3d p[3];  // in voxels from the row's origin
+    for (int i = 0; i < 3; ++i) p[i] = (V.row(t[i]).transpose() - origin_) / hv_;
+    if (seen_area(p, a) == 0.0) continue;  // parallel to the rays
+    int jb0, jb1, jc0, jc1;
+    if (!ray_range(p, a, k, jb0, jb1, jc0, jc1)) continue;
+    const int32_t part = vertex_part[size_t(t[0])];
+    for (int jc = jc0; jc <= jc1; ++jc)
+      for (int jb = jb0; jb <= jb1; ++jb) {
+        double at;
+        if (geometry::axis_line_crossing(p, a, jb + kJitterB, jc + kJitterC, at))
+          xs_.push_back({jb + k * jc, part, at});
+      }
+  }
+  found_ = xs_.size();
+  // Bucketed by ray (the part in x for now), then each ray's crossings by part and place: one
+  // crossing per part where a ray meets several of its triangles at one point (a shared edge or
+  // vertex, a duplicated face; the same triangle listed twice gives the same point too); then
+  // ascending along the ray, with the running XOR of the parts' hashes.
+  const size_t nr = size_t(k) * k;
+  ray_start_.assign(nr + 1, 0);
+  for (const Crossing& x : xs_) ++ray_start_[size_t(x.ray) + 1];
+  for (size_t r = 0; r < nr; ++r) ray_start_[r + 1] += ray_start_[r];
+  fill_.assign(ray_start_.begin(), ray_start_.end() - 1);
+  hits_.resize(xs_.size());
+  for (const Crossing& x : xs_) hits_[size_t(fill_[size_t(x.ray)]++)] = {x.at, uint64_t(uint32_t(x.part))};
+  int32_t kept = 0;
+  for (size_t r = 0; r < nr; ++r) {
+    Hit* h0 = hits_.data() + ray_start_[r];
+    Hit* h1 = hits_.data() + ray_start_[r + 1];
+    ray_start_[r] = kept;
+    std::sort(h0, h1, [](const Hit& x, const Hit& y) { return x.x != y.x ? x.x < y.x : x.at < y.at; });
+    Hit* out = hits_.data() + kept;
+    Hit* const first = out;
+    for (Hit* h = h0; h < h1; ++h)
+      if (out == first || h->x != (out - 1)->x || h->at - (out - 1)->at >= kSame) *out++ = *h;
+    for (Hit* h = first; h < out; ++h) h->x = part_hash(int32_t(uint32_t(h->x)));
+    std::sort(first, out, [](const Hit& x, const Hit& y) { return x.at < y.at; });
+    for (Hit* h = first + 1; h < out; ++h) h->x ^= (h - 1)->x;
+    kept = int32_t(out - hits_.data());
+  }
+  ray_start_[nr] = kept;
+  hits_.resize(size_t(kept));
+  xs_.clear();
+}
+
+}  // namespace larap

@@ -319,7 +319,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }, 4);
   }
   for (int a = 0; a < 3; ++a) std::vector<RowCell>().swap(rows[a]);
-  std::vector<int32_t>().swap(rs_tris);
+  for (std::vector<int32_t>* scratch : {&rs_tris, &rs_offsets, &row_cells, &row_surf, &row_offsets})
+    std::vector<int32_t>().swap(*scratch);
 
   parallel_for(nb, [&](int64_t b) {
     const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
@@ -433,9 +434,16 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // enclosed material. The rest are cores that the air cut off from the cell's surface where two
   // holes see them (4 votes let it in around them): air. A core that reaches the surface only
   // through a neighbouring cell becomes air too; keeping it would make it a piece of its own in
-  // its cell (a copy holding no vertex), joined to the skin's copy only far away.
+  // its cell (a copy holding no vertex), joined to the skin's copy only far away. A cell with no
+  // surface voxel at all (a triangle grazes it closer than the cell test's tolerance and farther
+  // than the voxels') keeps its held voxels: they are the inside of the solid it lies in.
+  static_assert(kHeld > 2, "kHeld is gone before the pieces are labelled (3 + piece)");
   parallel_for(nb, [&](int64_t b) {
     uint8_t* v = vox.data() + b * k3;
+    if (std::find(v, v + k3, uint8_t(1)) == v + k3) {
+      std::replace(v, v + k3, kHeld, uint8_t(0));
+      return;
+    }
     std::vector<int32_t> stack;
     auto take = [&](int32_t ni) {
       if (v[ni] == kHeld) {

@@ -77,6 +77,7 @@ int64_t RowRays::max_crossings(const int32_t* ids, size_t n, const RowMatrixX3d&
 
 void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
                     const std::vector<Eigen::Vector3i>& tris, const std::vector<int32_t>& vertex_part) {
+  static_assert(sizeof(Crossing) + sizeof(Hit) <= kBytesPerCrossing, "what the memory check counts");
   const int a = a_, k = k_;
   xs_.clear();
   xs_.reserve(size_t(max_crossings(ids, n, V, tris)));  // no growth: what the memory check counts
@@ -84,29 +85,33 @@ void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
     const Eigen::Vector3i& t = tris[size_t(ids[q])];
     Eigen::Vector3d p[3];  // in voxels from the row's origin
     for (int i = 0; i < 3; ++i) p[i] = (V.row(t[i]).transpose() - origin_) / hv_;
-    if (seen_area(p, a) == 0.0) continue;  // parallel to the rays
+    const double area = seen_area(p, a);
+    if (area == 0.0) continue;  // parallel to the rays
     int jb0, jb1, jc0, jc1;
     if (!ray_range(p, a, k, jb0, jb1, jc0, jc1)) continue;
     const int32_t part = vertex_part[size_t(t[0])];
+    const int32_t facing = area > 0;
     for (int jc = jc0; jc <= jc1; ++jc)
       for (int jb = jb0; jb <= jb1; ++jb) {
         double at;
         if (geometry::axis_line_crossing(p, a, jb + kJitterB, jc + kJitterC, at))
-          xs_.push_back({jb + k * jc, part, at});
+          xs_.push_back({2 * (jb + k * jc) + facing, part, at});
       }
   }
   found_ = xs_.size();
-  // Bucketed by ray (the part in x for now), then each ray's crossings by part and place: one
-  // crossing per part where a ray meets several of its triangles at one point (a shared edge or
-  // vertex, a duplicated face; the same triangle listed twice gives the same point too); then
-  // ascending along the ray, with the running XOR of the parts' hashes.
+  // Bucketed by ray (the part and facing in x for now), then each ray's crossings by part, facing
+  // and place: one crossing per part and facing where a ray meets several of its triangles at one
+  // point (a shared edge or vertex, a duplicated face; the same triangle listed twice gives the same
+  // point too); then ascending along the ray, with the running XOR of the parts' hashes.
   const size_t nr = size_t(k) * k;
   ray_start_.assign(nr + 1, 0);
-  for (const Crossing& x : xs_) ++ray_start_[size_t(x.ray) + 1];
+  for (const Crossing& x : xs_) ++ray_start_[size_t(x.ray_facing >> 1) + 1];
   for (size_t r = 0; r < nr; ++r) ray_start_[r + 1] += ray_start_[r];
   fill_.assign(ray_start_.begin(), ray_start_.end() - 1);
   hits_.resize(xs_.size());
-  for (const Crossing& x : xs_) hits_[size_t(fill_[size_t(x.ray)]++)] = {x.at, uint64_t(uint32_t(x.part))};
+  for (const Crossing& x : xs_)
+    hits_[size_t(fill_[size_t(x.ray_facing >> 1)]++)] = {
+        x.at, uint64_t(uint32_t(x.part)) << 1 | uint64_t(x.ray_facing & 1)};
   int32_t kept = 0;
   for (size_t r = 0; r < nr; ++r) {
     Hit* h0 = hits_.data() + ray_start_[r];
@@ -117,7 +122,7 @@ void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
     Hit* const first = out;
     for (Hit* h = h0; h < h1; ++h)
       if (out == first || h->x != (out - 1)->x || h->at - (out - 1)->at >= kSame) *out++ = *h;
-    for (Hit* h = first; h < out; ++h) h->x = part_hash(int32_t(uint32_t(h->x)));
+    for (Hit* h = first; h < out; ++h) h->x = part_hash(int32_t(uint32_t(h->x >> 1)));
     std::sort(first, out, [](const Hit& x, const Hit& y) { return x.at < y.at; });
     for (Hit* h = first + 1; h < out; ++h) h->x ^= (h - 1)->x;
     kept = int32_t(out - hits_.data());

@@ -18,8 +18,9 @@
 // their running XOR), and each analysed cell of the row reads its voxels' votes by binary search.
 //
 // Rays pass through the voxel centres moved by a millionth of a voxel, so that grid-aligned meshes
-// rarely put a vertex or edge on one; coincident crossings of one part (a ray through a shared
-// edge, duplicated faces) count once.
+// rarely put a vertex or edge on one; coincident crossings of one part facing the same way (a ray
+// through a shared edge, a duplicated face) count once, while two facing opposite ways (the wall
+// between two boxes joined face to face, one part by position) count twice: an exit and an entry.
 #pragma once
 #include <larap/mesh.h>
 
@@ -67,7 +68,8 @@ class RowRays {
     uint64_t x;  // the XOR of the part hashes of this ray's crossings up to this one, inclusive
   };
   struct Crossing {
-    int32_t ray, part;
+    int32_t ray_facing;  // 2 ray + which way the triangle faces along the ray (0 or 1)
+    int32_t part;
     double at;
   };
   int a_, k_;

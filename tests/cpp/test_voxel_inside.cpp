@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <larap/mesh.h>
 
+#include <algorithm>
 #include <numeric>
 
 #include "mesh_parts.h"
@@ -211,4 +212,26 @@ TEST(VoxelInside, EveryCellOfARowReadsItsOwnVotes) {
     for (int n : mine) voted += n == 2;
   }
   EXPECT_GT(voted, 1000);  // inside the box, along x, both directions vote
+}
+
+TEST(VoxelInside, ADuplicatedFaceCountsOnce) {
+  // A closed box with one face listed twice, the same way round: the rays through it meet two
+  // triangles at one point, one crossing, so the box stays inside (twice would make it even).
+  PolygonMesh m = gen::box({0.3, 0.3, 0.3}, {2.7, 2.7, 2.7});
+  for (int64_t q = m.face_offsets[0]; q < m.face_offsets[1]; ++q) m.face_indices.push_back(m.face_indices[q]);
+  m.face_offsets.push_back(int64_t(m.face_indices.size()));
+  const std::vector<uint8_t> v = votes_of(m, {1, 1, 1});
+  for (int64_t vi = 0; vi < int64_t(v.size()); ++vi) EXPECT_EQ(v[size_t(vi)], 6) << vi;
+}
+
+TEST(VoxelInside, AWallBetweenBoxesJoinedFaceToFaceCountsTwice) {
+  // Three boxes along x joined face to face (one part: their corners coincide): each inner wall is
+  // two faces at one place facing opposite ways, an exit and an entry, so the middle box is inside.
+  const PolygonMesh m =
+      gen::concat({gen::box({-1.0, 0.2, 0.2}, {1.0, 2.8, 2.8}), gen::box({1.0, 0.2, 0.2}, {2.0, 2.8, 2.8}),
+                   gen::box({2.0, 0.2, 0.2}, {4.0, 2.8, 2.8})});
+  const std::vector<int32_t> parts = mesh_parts(m);
+  ASSERT_TRUE(std::all_of(parts.begin(), parts.end(), [&](int32_t p) { return p == parts[0]; }));
+  const std::vector<uint8_t> v = votes_of(m, {1, 1, 1});
+  for (int64_t vi = 0; vi < int64_t(v.size()); ++vi) EXPECT_EQ(v[size_t(vi)], 6) << vi;
 }

@@ -41,6 +41,35 @@ inline bool triangle_box_overlap(const Eigen::Vector3d& centre, const Eigen::Vec
   return true;
 }
 
+// Rays along axis a (b = a + 1, c = a + 2, mod 3) through the centres of a grid's columns, moved
+// by a tiny irrational-looking amount so that rays through the vertices and edges of grid-aligned
+// meshes are unlikely: ray (jb, jc) is the line (b, c) = (jb + kRayB, jc + kRayC), in grid units.
+constexpr double kRayB = 0.5 + 1.3717e-6, kRayC = 0.5 + 2.9153e-6;
+
+// Twice the signed area of triangle p seen along axis a: zero when it is parallel to the rays,
+// its sign which way the triangle faces along them.
+inline double seen_area(const Eigen::Vector3d (&p)[3], int a) {
+  const int b = (a + 1) % 3, c = (a + 2) % 3;
+  return (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) - (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
+}
+
+// The rays of an nb x nc grid of them (above) that triangle p's box covers, [jb0, jb1] x [jc0,
+// jc1]; false when none (or a coordinate is not finite).
+inline bool rays_in_box(const Eigen::Vector3d (&p)[3], int a, int nb, int nc, int& jb0, int& jb1, int& jc0,
+                        int& jc1) {
+  const int b = (a + 1) % 3, c = (a + 2) % 3;
+  const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - kRayB;
+  const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - kRayB;
+  const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - kRayC;
+  const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - kRayC;
+  if (!(bmax >= 0 && bmin <= nb - 1 && cmax >= 0 && cmin <= nc - 1)) return false;  // NaN-safe
+  jb0 = int(std::max(0.0, std::ceil(bmin)));
+  jb1 = int(std::min(double(nb - 1), std::floor(bmax)));
+  jc0 = int(std::max(0.0, std::ceil(cmin)));
+  jc1 = int(std::min(double(nc - 1), std::floor(cmax)));
+  return jb0 <= jb1 && jc0 <= jc1;
+}
+
 // Where the line through (b, c) = (qb, qc) along axis a (b = a + 1, c = a + 2, mod 3) crosses the
 // triangle p, edges and corners included: writes the a coordinate into `at`. False when the line
 // misses it; a triangle parallel to the line (zero area seen along a) is never crossed.

@@ -112,9 +112,7 @@ static void mark_outside(Grid& g) {
 static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
                                   const std::vector<Eigen::Vector3i>& tris) {
   std::vector<uint8_t> votes(static_cast<size_t>(g.size()), 0);
-  // Columns are offset from cell centres by a tiny irrational-looking amount so that rays through
-  // vertices and edges of grid-aligned meshes (a cube exactly on cell centres) are unlikely.
-  const double jitter_b = 0.5 + 1.3717e-6, jitter_c = 0.5 + 2.9153e-6;
+  // Columns: the rays of geometry.h (off the cell centres by a millionth of a cell).
   for (int a = 0; a < 3; ++a) {
     const int b = (a + 1) % 3, c = (a + 2) % 3;
     const int nb = g.dims[b], nc = g.dims[c], na = g.dims[a];
@@ -122,21 +120,13 @@ static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
     for (const auto& t : tris) {
       Eigen::Vector3d p[3];
       for (int k = 0; k < 3; ++k) p[k] = (V.row(t[k]).transpose() - g.origin) / g.h;
-      const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - jitter_b;
-      const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - jitter_b;
-      const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - jitter_c;
-      const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - jitter_c;
-      const int jb0 = std::max(0, int(std::ceil(bmin))), jb1 = std::min(nb - 1, int(std::floor(bmax)));
-      const int jc0 = std::max(0, int(std::ceil(cmin))), jc1 = std::min(nc - 1, int(std::floor(cmax)));
-      if (jb0 > jb1 || jc0 > jc1) continue;
-      // Signed area in the (b, c) plane.
-      const double area = (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) -
-                          (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
-      if (area == 0.0) continue;  // parallel to the ray
+      int jb0, jb1, jc0, jc1;
+      if (geometry::seen_area(p, a) == 0.0) continue;  // parallel to the ray
+      if (!geometry::rays_in_box(p, a, nb, nc, jb0, jb1, jc0, jc1)) continue;
       for (int jc = jc0; jc <= jc1; ++jc)
         for (int jb = jb0; jb <= jb1; ++jb) {
           double ta;
-          if (geometry::axis_line_crossing(p, a, jb + jitter_b, jc + jitter_c, ta))
+          if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, ta))
             cols[size_t(jc) * nb + jb].push_back(ta);
         }
     }

@@ -8,7 +8,6 @@
 namespace larap {
 namespace {
 
-constexpr double kJitterB = 0.5 + 1.3717e-6, kJitterC = 0.5 + 2.9153e-6;  // ray jb passes jb + kJitterB
 constexpr double kSame = 1e-7;  // crossings of one part closer than this (voxels) along a ray are one
 
 // A part's hash: never zero, distinct for distinct parts (splitmix64 is a bijection).
@@ -18,28 +17,6 @@ uint64_t part_hash(int32_t part) {
   z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
   z ^= z >> 31;
   return z ? z : 1;
-}
-
-// Twice the area of a triangle seen along axis a: zero when it is parallel to the rays.
-double seen_area(const Eigen::Vector3d (&p)[3], int a) {
-  const int b = (a + 1) % 3, c = (a + 2) % 3;
-  return (p[1][b] - p[0][b]) * (p[2][c] - p[0][c]) - (p[2][b] - p[0][b]) * (p[1][c] - p[0][c]);
-}
-
-// The rays a triangle's box covers: [jb0, jb1] x [jc0, jc1], false when none. p in voxels from
-// the row's origin.
-bool ray_range(const Eigen::Vector3d (&p)[3], int a, int k, int& jb0, int& jb1, int& jc0, int& jc1) {
-  const int b = (a + 1) % 3, c = (a + 2) % 3;
-  const double bmin = std::min({p[0][b], p[1][b], p[2][b]}) - kJitterB;
-  const double bmax = std::max({p[0][b], p[1][b], p[2][b]}) - kJitterB;
-  const double cmin = std::min({p[0][c], p[1][c], p[2][c]}) - kJitterC;
-  const double cmax = std::max({p[0][c], p[1][c], p[2][c]}) - kJitterC;
-  if (!(bmax >= 0 && bmin <= k - 1 && cmax >= 0 && cmin <= k - 1)) return false;  // NaN-safe
-  jb0 = int(std::max(0.0, std::ceil(bmin)));
-  jb1 = int(std::min(double(k - 1), std::floor(bmax)));
-  jc0 = int(std::max(0.0, std::ceil(cmin)));
-  jc1 = int(std::min(double(k - 1), std::floor(cmax)));
-  return jb0 <= jb1 && jc0 <= jc1;
 }
 
 }  // namespace
@@ -52,12 +29,13 @@ int64_t RowRays::max_crossings(const int32_t* ids, size_t n, const RowMatrixX3d&
     Eigen::Vector3d p[3];
     for (int i = 0; i < 3; ++i) p[i] = (V.row(t[i]).transpose() - origin_) / hv_;
     int jb0, jb1, jc0, jc1;
-    if (seen_area(p, a_) == 0.0 || !ray_range(p, a_, k_, jb0, jb1, jc0, jc1)) continue;
+    if (geometry::seen_area(p, a_) == 0.0 || !geometry::rays_in_box(p, a_, k_, k_, jb0, jb1, jc0, jc1))
+      continue;
     // Scanlines: the rays of each line jc that the triangle's shadow covers, widened by a
     // billionth of a voxel so that what axis_line_crossing takes on an edge is counted.
     const int b = (a_ + 1) % 3, c = (a_ + 2) % 3;
     for (int jc = jc0; jc <= jc1; ++jc) {
-      const double qc = jc + kJitterC;
+      const double qc = jc + geometry::kRayC;
       double lo = std::numeric_limits<double>::infinity(), hi = -lo;
       for (int e = 0; e < 3; ++e) {
         const Eigen::Vector3d& u = p[e];
@@ -67,8 +45,8 @@ int64_t RowRays::max_crossings(const int32_t* ids, size_t n, const RowMatrixX3d&
         lo = std::min({lo, at, u[c] == v[c] ? v[b] : at});
         hi = std::max({hi, at, u[c] == v[c] ? v[b] : at});
       }
-      const int j0 = std::max(jb0, int(std::ceil(lo - kJitterB - 1e-9)));
-      const int j1 = std::min(jb1, int(std::floor(hi - kJitterB + 1e-9)));
+      const int j0 = std::max(jb0, int(std::ceil(lo - geometry::kRayB - 1e-9)));
+      const int j1 = std::min(jb1, int(std::floor(hi - geometry::kRayB + 1e-9)));
       if (j1 >= j0) total += j1 - j0 + 1;
     }
   }
@@ -85,16 +63,16 @@ void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
     const Eigen::Vector3i& t = tris[size_t(ids[q])];
     Eigen::Vector3d p[3];  // in voxels from the row's origin
     for (int i = 0; i < 3; ++i) p[i] = (V.row(t[i]).transpose() - origin_) / hv_;
-    const double area = seen_area(p, a);
+    const double area = geometry::seen_area(p, a);
     if (area == 0.0) continue;  // parallel to the rays
     int jb0, jb1, jc0, jc1;
-    if (!ray_range(p, a, k, jb0, jb1, jc0, jc1)) continue;
+    if (!geometry::rays_in_box(p, a, k, k, jb0, jb1, jc0, jc1)) continue;
     const int32_t part = vertex_part[size_t(t[0])];
     const int32_t facing = area > 0;
     for (int jc = jc0; jc <= jc1; ++jc)
       for (int jb = jb0; jb <= jb1; ++jb) {
         double at;
-        if (geometry::axis_line_crossing(p, a, jb + kJitterB, jc + kJitterC, at))
+        if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, at))
           xs_.push_back({2 * (jb + k * jc) + facing, part, at});
       }
   }

@@ -41,17 +41,19 @@ Eigen::Vector3d centre(const Eigen::Vector3d& corner, int64_t vi) {
   return corner + (Eigen::Vector3d(i, j, l) + Eigen::Vector3d::Constant(0.5)) / kRes;
 }
 
-// A box without its +z face: open on top.
-PolygonMesh open_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+// The box lo..hi without the faces whose corners all have coordinate `axis` at one of `at`.
+PolygonMesh box_without(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, int axis,
+                        std::vector<double> at) {
   PolygonMesh m = gen::box(lo, hi);
   PolygonMesh o;
   o.vertices = m.vertices;
   o.face_offsets = {0};
   for (int64_t f = 0; f < m.num_faces(); ++f) {
-    bool top = true;
+    const double x = m.vertices(m.face_indices[m.face_offsets[f]], axis);
+    bool drop = std::find(at.begin(), at.end(), x) != at.end();
     for (int64_t q = m.face_offsets[f]; q < m.face_offsets[f + 1]; ++q)
-      top = top && m.vertices(m.face_indices[q], 2) == hi.z();
-    if (top) continue;
+      drop = drop && m.vertices(m.face_indices[q], axis) == x;
+    if (drop) continue;
     for (int64_t q = m.face_offsets[f]; q < m.face_offsets[f + 1]; ++q)
       o.face_indices.push_back(m.face_indices[q]);
     o.face_offsets.push_back(int64_t(o.face_indices.size()));
@@ -59,23 +61,14 @@ PolygonMesh open_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
   return o;
 }
 
+// A box without its +z face: open on top.
+PolygonMesh open_box(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+  return box_without(lo, hi, 2, {hi.z()});
+}
+
 // An open square tube along x (four side walls, no ends), inner half-width r around (y, z) = c.
 PolygonMesh square_sleeve(double x0, double x1, double c, double r) {
-  PolygonMesh m = gen::box({x0, c - r, c - r}, {x1, c + r, c + r});
-  PolygonMesh o;
-  o.vertices = m.vertices;
-  o.face_offsets = {0};
-  for (int64_t f = 0; f < m.num_faces(); ++f) {
-    bool end = true;
-    const double x = m.vertices(m.face_indices[m.face_offsets[f]], 0);
-    for (int64_t q = m.face_offsets[f]; q < m.face_offsets[f + 1]; ++q)
-      end = end && m.vertices(m.face_indices[q], 0) == x;
-    if (end) continue;
-    for (int64_t q = m.face_offsets[f]; q < m.face_offsets[f + 1]; ++q)
-      o.face_indices.push_back(m.face_indices[q]);
-    o.face_offsets.push_back(int64_t(o.face_indices.size()));
-  }
-  return o;
+  return box_without({x0, c - r, c - r}, {x1, c + r, c + r}, 0, {x0, x1});
 }
 
 }  // namespace

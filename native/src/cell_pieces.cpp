@@ -215,21 +215,27 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
     return ids;
   };
-  // Each row's scratch: its triangles (repeats included) and the crossings they can give.
-  std::vector<double> row_bytes(row_offsets.size() - 1);
-  {
+  // Calls visit(a, r, row) for every row in parallel, axis by axis: r counts the rows of all axes
+  // (row_offsets' index), row is the row's index among axis a's (row_start[a]'s).
+  auto for_each_row = [&](auto&& visit) {
     size_t r0 = 0;
     for (int a = 0; a < 3; ++a) {
       const int64_t nr = int64_t(row_start[a].size()) - 1;
-      parallel_for(nr, [&](int64_t r) {
-        const RowRays rays = row_rays(a, rows[a][size_t(row_start[a][size_t(r)])].row);
-        const std::vector<int32_t> ids = row_triangles(r0 + size_t(r));
-        row_bytes[r0 + size_t(r)] = 8.0 * (double(k) * k + 1) + 4.0 * double(ids.capacity()) +
-                                    RowRays::kBytesPerCrossing * double(rays.max_crossings(ids.data(), ids.size(), V, tris));
-      }, 16);
+      parallel_for(nr, [&](int64_t row) { visit(a, r0 + size_t(row), size_t(row)); }, 1);
       r0 += size_t(nr);
     }
-  }
+  };
+  // Each row's scratch: its triangles and the crossings they can give (kept for cross() to
+  // reserve, so that it never grows past what is counted here).
+  std::vector<int64_t> row_crossings(row_offsets.size() - 1);
+  std::vector<double> row_bytes(row_offsets.size() - 1);
+  for_each_row([&](int a, size_t r, size_t row) {
+    const RowRays rays = row_rays(a, rows[a][size_t(row_start[a][row])].row);
+    const std::vector<int32_t> ids = row_triangles(r);
+    row_crossings[r] = rays.max_crossings(ids.data(), ids.size(), V, tris);
+    row_bytes[r] = 8.0 * (double(k) * k + 1) + 4.0 * double(ids.capacity()) +
+                   RowRays::kBytesPerCrossing * double(row_crossings[r]);
+  });
   // Memory, an upper bound before anything of the size of the voxels is allocated: per analysed
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
@@ -295,23 +301,19 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // the votes add up in the voxels themselves, before the surface's are marked.
   constexpr uint8_t kHeld = 255;
   {
-    size_t r0 = 0;
-    for (int a = 0; a < 3; ++a) {
-      const int64_t nr = int64_t(row_start[a].size()) - 1;
-      parallel_for(nr, [&](int64_t r) {
-        std::vector<int32_t> ids = row_triangles(r0 + size_t(r));
-        RowRays rays = row_rays(a, rows[a][size_t(row_start[a][size_t(r)])].row);
-        rays.cross(ids.data(), ids.size(), V, tris, vertex_part);
-        std::vector<int32_t>().swap(ids);
-        for (int32_t i = row_start[a][size_t(r)]; i < row_start[a][size_t(r) + 1]; ++i) {
-          uint8_t* v = vox.data() + int64_t(rows[a][size_t(i)].b) * k3;
-          rays.votes(rows[a][size_t(i)].along, [v](int64_t vi, int n) {
-            v[vi] = uint8_t(v[vi] + n);
-          });
-        }
-      }, 1);
-      r0 += size_t(nr);
-    }
+    for_each_row([&](int a, size_t r, size_t row) {
+      std::vector<int32_t> ids = row_triangles(r);
+      RowRays rays = row_rays(a, rows[a][size_t(row_start[a][row])].row);
+      rays.cross(ids.data(), ids.size(), V, tris, vertex_part, row_crossings[r]);
+      std::vector<int32_t>().swap(ids);
+      for (int32_t i = row_start[a][row]; i < row_start[a][row + 1]; ++i) {
+        uint8_t* v = vox.data() + int64_t(rows[a][size_t(i)].b) * k3;
+        rays.votes(rows[a][size_t(i)].along, [v](int64_t vi, int n) {
+          v[vi] = uint8_t(v[vi] + n);
+        });
+      }
+    });
+    std::vector<int64_t>().swap(row_crossings);
     parallel_for(nb, [&](int64_t b) {
       uint8_t* v = vox.data() + b * k3;
       for (int64_t vi = 0; vi < k3; ++vi)

@@ -54,11 +54,13 @@ int64_t RowRays::max_crossings(const int32_t* ids, size_t n, const RowMatrixX3d&
 }
 
 void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
-                    const std::vector<Eigen::Vector3i>& tris, const std::vector<int32_t>& vertex_part) {
+                    const std::vector<Eigen::Vector3i>& tris, const std::vector<int32_t>& vertex_part,
+                    int64_t most) {
   static_assert(sizeof(Crossing) + sizeof(Hit) <= kBytesPerCrossing, "what the memory check counts");
   const int a = a_, k = k_;
   xs_.clear();
-  xs_.reserve(size_t(max_crossings(ids, n, V, tris)));  // no growth: what the memory check counts
+  // No growth past what the memory check counts.
+  xs_.reserve(size_t(most >= 0 ? most : max_crossings(ids, n, V, tris)));
   for (size_t q = 0; q < n; ++q) {
     const Eigen::Vector3i& t = tris[size_t(ids[q])];
     Eigen::Vector3d p[3];  // in voxels from the row's origin

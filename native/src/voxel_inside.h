@@ -43,9 +43,10 @@ class RowRays {
   RowRays(int a, const Eigen::Vector3d& origin, double hv, int k) : a_(a), k_(k), hv_(hv), origin_(origin) {}
 
   // Finds the rays' crossings with the triangles ids[0, n) (repeats allowed): every triangle that
-  // overlaps a cell of the row. Replaces the crossings found before.
+  // overlaps a cell of the row. Replaces the crossings found before. `most`: max_crossings() of
+  // the same triangles when the caller has it already (it is counted again when negative).
   void cross(const int32_t* ids, size_t n, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris,
-             const std::vector<int32_t>& vertex_part);
+             const std::vector<int32_t>& vertex_part, int64_t most = -1);
 
   // The most crossings cross() can find among ids[0, n): the rays in each triangle's shadow
   // (what it holds per crossing, 32 bytes, and 8 (k^2 + 1) bytes per row are the memory it

@@ -242,7 +242,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
   // (a flood stack or the part sets' offsets, last-part table and union-find: 16 k^3), or before
   // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
-  // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over), 32
+  // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over; the
+  // rows' tables alive with the voxels, at most 3 rows per cell: about 100 bytes), 32
   // bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
   const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells

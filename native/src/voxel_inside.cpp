@@ -1,6 +1,7 @@
 #include "voxel_inside.h"
 
 #include <cmath>
+#include <cassert>
 #include <limits>
 
 #include "geometry.h"
@@ -79,6 +80,7 @@ void RowRays::cross(const int32_t* ids, size_t n, const RowMatrixX3d& V,
       }
   }
   found_ = xs_.size();
+  assert(most < 0 || int64_t(found_) <= most);  // tests: VoxelInside's found <= max_crossings
   // Bucketed by ray (the part and facing in x for now), then each ray's crossings by part, facing
   // and place: one crossing per part and facing where a ray meets several of its triangles at one
   // point (a shared edge or vertex, a duplicated face; the same triangle listed twice gives the same

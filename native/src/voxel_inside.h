@@ -44,7 +44,9 @@ class RowRays {
 
   // Finds the rays' crossings with the triangles ids[0, n) (repeats allowed): every triangle that
   // overlaps a cell of the row. Replaces the crossings found before. `most`: max_crossings() of
-  // the same triangles when the caller has it already (it is counted again when negative).
+  // exactly these ids when the caller has it already (negative: counted here); the reservation
+  // is what the memory check charges, so a smaller count would let the crossings grow past it
+  // (asserted in debug builds; the tests check max_crossings against what is found).
   void cross(const int32_t* ids, size_t n, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris,
              const std::vector<int32_t>& vertex_part, int64_t most = -1);
 

@@ -34,14 +34,15 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
     for _mod in _MODULES:  # noqa: F821 (set by the first load)
         importlib.reload(_mod)
 else:
-    from . import (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
-                   catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
+    from . import (engine, scene_index, props, errors, progress, mesh_data, targets, runtime, preview,
+                   transaction, solving, catchup, session, handlers, bake, core, operators, modal, farm, ui,
+                   overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
-_MODULES = (engine, props, errors, progress, mesh_data, targets, runtime, preview, transaction, solving,
-            catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
+_MODULES = (engine, scene_index, props, errors, progress, mesh_data, targets, runtime, preview, transaction,
+            solving, catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)
 

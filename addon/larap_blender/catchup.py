@@ -35,7 +35,7 @@ import time
 
 import bpy
 
-from . import preview
+from . import preview, scene_index
 from .errors import LarapError
 from .runtime import _RUNTIMES, runtime
 from .solving import key_up_to_date, solve, stored_signature
@@ -45,9 +45,9 @@ DELAY = 0.4  # seconds after the last move
 
 def _objects_by_key():
     out = {}
-    for obj in bpy.data.objects:
+    for obj in scene_index.bound_meshes(None):
         try:
-            if obj.type == "MESH" and obj.larap.bound and obj.larap.runtime_id:
+            if obj.larap.bound and obj.larap.runtime_id:
                 out[obj.larap.runtime_id] = obj
         except ReferenceError:
             continue

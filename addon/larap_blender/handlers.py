@@ -14,14 +14,17 @@ the preview at the update that reports it (:func:`refresh_preview`: the mesh cat
 The other handlers keep the runtime cache and the mesh data true to the file: ``load_post``
 drops the cache, ``undo_post``/``redo_post`` make it re-validate (runtime.after_undo); both end
 any preview and catch up live meshes restored behind their targets; ``save_pre``,
-``render_init``/``render_pre`` and ``object_bake_pre`` catch up first.
+``render_init``/``render_pre`` and ``object_bake_pre`` catch up first. The bound meshes of the
+scene and the targets' presence are read from scene_index, which these handlers tell when they
+may have changed (a reported Scene or Collection, undo, redo, load), so an update does not look at
+every object of the file.
 """
 import contextlib
 
 import bpy
 from bpy.app.handlers import persistent
 
-from . import catchup, preview
+from . import catchup, preview, scene_index
 from .errors import LarapError
 from .props import SETTINGS_VERSION, upgrade_settings
 from .runtime import after_undo, drop_runtime, runtime, runtime_or_placeholder
@@ -83,7 +86,7 @@ def live_update(scene, updated_names=None):
     solved = 0
     render = rendering()
     with suspend_live():
-        for obj in list(scene.objects):
+        for obj in list(scene_index.bound_meshes(scene)):
             try:
                 if obj.type != "MESH" or not obj.larap.bound or not obj.larap.live:
                     continue
@@ -143,9 +146,13 @@ def larap_depsgraph_update_post(scene, depsgraph=None):
                         objects.append(obj)
                 elif isinstance(idd, bpy.types.Mesh):
                     meshes.add(idd.original.as_pointer())
+                else:
+                    scene_index.note_updated(idd)
             except ReferenceError:
+                scene_index.invalidate()
                 continue
     except ReferenceError:
+        scene_index.invalidate()
         return
     if objects:  # an object appended from an older file shows and solves with its own Stiffness
         upgrade_all_settings(objects)
@@ -200,6 +207,7 @@ def larap_load_pre(*_args):
     """Another file replaces this one: no preview or pending catch-up carries over. Nothing is
     caught up here: the open file's unsaved state (a pending pose too) is being discarded, and a
     save offered first went through save_pre, which caught up."""
+    scene_index.invalidate()
     catchup.cancel_timer()
     preview.reset_all()
 
@@ -222,6 +230,7 @@ def larap_load_post(*_args):
     pose key was saved behind their targets catch up; an up-to-date file is left as it is.
     Settings stored by an older version are brought up to date first, keeping their pose
     (props.upgrade_settings), so that the catch-up compares like with like."""
+    scene_index.invalidate()
     upgrade_all_settings()
     drop_runtime()
     preview.reset_all()
@@ -234,6 +243,7 @@ def larap_undo_post(*_args):
     engines re-validate and forget their warm start; objects stored hidden behind a preview are
     shown again; live meshes whose restored pose key is behind their restored targets catch up
     (the same targets give the same pose, so undo shows the caught-up pose)."""
+    scene_index.invalidate()
     after_undo()
     upgrade_all_settings()  # a step stored before an older object's upgrade
     refresh_warnings_after_undo()
@@ -261,6 +271,13 @@ def refresh_warnings_after_undo():
 
 
 @persistent
+def larap_before_swap(*_args):
+    """undo_pre/redo_pre: the objects held between updates (scene_index) are about to be
+    replaced; nothing reads them until they are found again."""
+    scene_index.invalidate()
+
+
+@persistent
 def larap_catch_up(*_args):
     """save_pre, render_init/render_pre, object_bake_pre: the mesh data holds the pose first."""
     with suspend_live():
@@ -272,6 +289,8 @@ _HANDLERS = (
     ("frame_change_post", larap_frame_change_post),
     ("load_pre", larap_load_pre),
     ("load_post", larap_load_post),
+    ("undo_pre", larap_before_swap),
+    ("redo_pre", larap_before_swap),
     ("undo_post", larap_undo_post),
     ("redo_post", larap_undo_post),
     ("save_pre", larap_catch_up),

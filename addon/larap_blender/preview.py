@@ -41,6 +41,7 @@ per-binding data, the shader, lighting like Solid mode, drawing.
 import bpy
 import numpy as np
 
+from . import scene_index
 from .runtime import runtime
 
 # Kept across importlib.reload (F8 / re-enable), so a reload never orphans a callback or leaves
@@ -81,8 +82,7 @@ def blocker(obj):
         return "modifiers after the pose key (%s)" % ", ".join(mods[:3])
     if obj.display_type not in ("SOLID", "TEXTURED"):
         return "object displayed as %s" % obj.display_type.title()
-    view_layer = getattr(bpy.context, "view_layer", None)
-    if view_layer is None or view_layer.objects.get(obj.name) != obj:
+    if not scene_index.in_view_layer(obj, getattr(bpy.context, "view_layer", None)):
         return "not in the current view layer"
     if obj.hide_get() and not showing(obj):
         return "hidden"
@@ -579,10 +579,12 @@ def draw():
     shader = _shader()
     if shader is None:
         return
-    for obj in view_layer.objects:
+    for obj in scene_index.bound_meshes(ctx.scene):
         try:
-            entry = _SHOWN.get(obj.larap.runtime_id) if obj.type == "MESH" else None
-            if entry is None or entry.get("hidden", False):  # not ours, or hidden by the artist
+            entry = _SHOWN.get(obj.larap.runtime_id)
+            if entry is None or entry.get("hidden", False):  # not shown, or hidden by the artist
+                continue
+            if not scene_index.in_view_layer(obj, view_layer):
                 continue
             rt = runtime(obj)
             if rt is None or rt.deformer is None or rt.lattice_nodes is None:

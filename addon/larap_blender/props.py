@@ -6,6 +6,8 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty,
                        FloatVectorProperty, IntProperty, PointerProperty, StringProperty)
 
+from . import scene_index
+
 WEIGHT_ITEMS = [  # what the artist sees: the look and the cost, the maths in the tooltip
     ("trilinear", "Fast", "Follows the lattice cell by cell: quickest, may show faint creases at cell borders "
      "(trilinear interpolation)"),
@@ -117,7 +119,9 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
 
 
 class LARAP_PG_settings(bpy.types.PropertyGroup):
-    bound: BoolProperty(name="Bound", default=False)
+    # Bound meshes are kept between updates (scene_index): binding or unbinding, by the add-on or
+    # a script, makes it look again.
+    bound: BoolProperty(name="Bound", default=False, update=lambda _self, _context: scene_index.invalidate())
     resolution_mode: EnumProperty(
         name="Resolution",
         description="How fine the lattice that carries the mesh is (finer: follows thin parts better, slower)",

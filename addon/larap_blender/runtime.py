@@ -17,6 +17,7 @@ import uuid
 import bpy
 import numpy as np
 
+from . import scene_index
 from .errors import TopologyChanged, engine_errors, require_engine
 from .mesh_data import array_hash, polygons, rest_positions, topology_arrays, topology_hash
 from .props import upgrade_settings
@@ -144,9 +145,9 @@ def drop_runtime(obj_or_key=None):
 
 
 def _bound_meshes():
-    for obj in bpy.data.objects:
+    for obj in scene_index.bound_meshes(None):
         try:
-            if obj.type == "MESH" and obj.larap.bound and obj.larap.runtime_id:
+            if obj.larap.bound and obj.larap.runtime_id:
                 yield obj
         except ReferenceError:
             continue

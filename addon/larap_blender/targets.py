@@ -25,6 +25,7 @@ from mathutils import Matrix
 
 from .errors import LarapError
 from .mesh_data import vertex_group_weights
+from .scene_index import bound_meshes, target_alive  # noqa: F401 (target_alive: part of this module's API)
 
 
 def flat(m):
@@ -34,15 +35,6 @@ def flat(m):
 
 def _matrix(flat16):
     return Matrix([flat16[0:4], flat16[4:8], flat16[8:12], flat16[12:16]])
-
-
-def target_alive(target):
-    if target is None:
-        return False
-    try:
-        return len(target.users_scene) > 0
-    except ReferenceError:
-        return False
 
 
 def object_matrix(t, bone, label="", overrides=None):
@@ -343,9 +335,9 @@ def meshes_driven_by(obj):
     if obj is None:
         return []
     found = []
-    for ob in bpy.data.objects:
+    for ob in bound_meshes(None):
         try:
-            if ob.type == "MESH" and ob.larap.bound and any(h.target == obj for h in ob.larap.handles):
+            if ob.larap.bound and any(h.target == obj for h in ob.larap.handles):
                 found.append(ob)
         except ReferenceError:
             continue

@@ -33,6 +33,7 @@ def test_object_menu_lists_every_operator(addon):
 
 OUR_HANDLERS = {("depsgraph_update_post", "larap_depsgraph_update_post"),
                 ("frame_change_post", "larap_frame_change_post"), ("load_post", "larap_load_post"),
+                ("undo_pre", "larap_before_swap"), ("redo_pre", "larap_before_swap"),
                 ("undo_post", "larap_undo_post"), ("redo_post", "larap_undo_post"),
                 ("load_pre", "larap_load_pre"), ("save_pre", "larap_catch_up"), ("render_init", "larap_catch_up"),
                 ("render_pre", "larap_catch_up"), ("object_bake_pre", "larap_catch_up")}

@@ -3,11 +3,11 @@
 #include <larap/errors.h>
 
 #include <algorithm>
-#include <cstdio>
-#include <functional>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <numeric>
+#include <string>
 #include <unordered_map>
 
 #include "geometry.h"
@@ -278,14 +278,11 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       bytes += 24.0 * k2d + 2.0 * nsets * (4.0 + 4.0 * np);
     }
   if (bytes > double(max_voxel_bytes)) {
-    char msg[400];
-    std::snprintf(msg, sizeof msg,
-                  "cell splitting would analyse %lld cells: up to %.1f MiB of voxels and face tables, over "
-                  "the %.1f MiB the grid leaves of the memory limit; use a lower split_resolution (%d now), "
-                  "a larger cell size, or split_cells=False",
-                  static_cast<long long>(nb), bytes / (1024.0 * 1024.0),
-                  double(std::max<int64_t>(max_voxel_bytes, 0)) / (1024.0 * 1024.0), k);
-    throw OutOfMemory(msg);
+    throw OutOfMemory("cell splitting would analyse " + std::to_string(nb) + " cells: up to " + memory_text(bytes) +
+                      " of voxels and face tables, over the " +
+                      memory_text(double(std::max<int64_t>(max_voxel_bytes, 0))) +
+                      " the grid leaves of the memory limit; use a lower split_resolution (" + std::to_string(k) +
+                      " now), a larger cell size, or split_cells=False");
   }
   out.voxels = nb * k3;
   std::vector<uint8_t> vox(static_cast<size_t>(nb * k3), 0);  // 0 unknown, 1 surface, 2 air, >= 3 piece + 3

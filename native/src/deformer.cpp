@@ -49,7 +49,7 @@ std::unique_ptr<Backend> make_backend(const std::string& device, const Lattice& 
 
 void check_gamma(double gamma) {
   if (!(gamma > 0.0) || !std::isfinite(gamma))
-    throw InvalidInput("gamma must be a positive finite number, got " + std::to_string(gamma));
+    throw InvalidInput("gamma must be a positive finite number, got " + number_text(gamma));
 }
 
 void check_levels(int levels) {
@@ -377,7 +377,7 @@ void Deformer::Impl::check_solve_args(const HandleTargets& targets, int iteratio
     throw InvalidInput("iterations must be between 0 and " + std::to_string(kMaxIterations) +
                        ", got " + std::to_string(iterations));
   if (!(tolerance >= 0.0) || !std::isfinite(tolerance))
-    throw InvalidInput("tolerance must be a non-negative number, got " + std::to_string(tolerance));
+    throw InvalidInput("tolerance must be a non-negative number, got " + number_text(tolerance));
   if (targets.rows) {
     const int64_t m = static_cast<int64_t>(spec.vertices.size());
     for (int64_t k = 0; k < 3 * m; ++k)

@@ -390,7 +390,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (mesh.num_vertices() == 0) throw InvalidInput("the mesh has no vertices");
   if (!(options.cell_size >= 0.0) || !std::isfinite(options.cell_size))
     throw InvalidInput("cell_size must be a positive finite number, got " +
-                       std::to_string(options.cell_size));
+                       number_text(options.cell_size));
   if (options.cells < 0)
     throw InvalidInput("cells must be positive, got " + std::to_string(options.cells));
   if (options.split_resolution < 4 || options.split_resolution > 64)

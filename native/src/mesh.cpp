@@ -13,7 +13,7 @@ void validate_mesh(const PolygonMesh& mesh) {
     for (int c = 0; c < 3; ++c)
       if (!std::isfinite(mesh.vertices(i, c)))
         throw InvalidInput("vertices[" + std::to_string(i) + "] has a non-finite coordinate (" +
-                           std::to_string(mesh.vertices(i, c)) + ")");
+                           number_text(mesh.vertices(i, c)) + ")");
   if (mesh.face_offsets.empty() || mesh.face_offsets.front() != 0)
     throw InvalidInput("face offsets must start at 0");
   const int64_t m = mesh.num_faces();

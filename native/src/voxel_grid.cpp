@@ -3,7 +3,6 @@
 #include <larap/errors.h>
 #include <unistd.h>
 
-#include <cstdio>
 #include <limits>
 #include <string>
 
@@ -17,12 +16,6 @@ int64_t physical_memory_bytes() {
   const long page = sysconf(_SC_PAGE_SIZE);
   if (pages <= 0 || page <= 0) return int64_t(8) << 30;
   return static_cast<int64_t>(pages) * page;
-}
-
-static std::string mib(double bytes) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.0f MiB", bytes / (1024.0 * 1024.0));
-  return buf;
 }
 
 
@@ -44,10 +37,10 @@ void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes) {
   const double bytes = double(Lattice::estimate_bytes(dims));
   const bool too_many = dims.maxCoeff() >= (1 << 20) || cells > 2.0e9;
   if (too_many || bytes > double(max_bytes)) {
-    throw OutOfMemory("the lattice grid at cell size " + std::to_string(h) + " would be " +
+    throw OutOfMemory("the lattice grid at cell size " + number_text(h) + " would be " +
                       std::to_string(dims.x()) + " x " + std::to_string(dims.y()) + " x " +
-                      std::to_string(dims.z()) + " cells and need about " + mib(bytes) +
-                      " (limit " + mib(double(max_bytes)) +
+                      std::to_string(dims.z()) + " cells and need about " + memory_text(bytes) +
+                      " (limit " + memory_text(double(max_bytes)) +
                       "); use fewer cells or a larger cell size");
   }
 }
@@ -165,7 +158,7 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
   g.origin = lo - Eigen::Vector3d::Constant(kPad * h);
   const Eigen::Vector3d far_corner = g.origin + h * g.dims.cast<double>();
   if (!g.origin.allFinite() || !far_corner.allFinite())
-    throw InvalidInput("the lattice's grid (cell size " + std::to_string(h) +
+    throw InvalidInput("the lattice's grid (cell size " + number_text(h) +
                        ") reaches beyond the largest double; scale the mesh down");
   g.marks.assign(static_cast<size_t>(g.size()), 0);
 

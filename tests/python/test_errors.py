@@ -45,13 +45,13 @@ CONSTRUCTION = [
     ("cell_size zero", dict(cells=None, cell_size=0.0), ValueError, "cell_size"),
     ("cell_size negative", dict(cells=None, cell_size=-1.0), ValueError, "cell_size"),
     ("cell_size NaN", dict(cells=None, cell_size=float("nan")), ValueError, "cell_size"),
-    ("cell_size absurdly small", dict(cells=None, cell_size=1e-7), MemoryError, "MiB"),
+    ("cell_size absurdly small", dict(cells=None, cell_size=1e-7), MemoryError, "at cell size 1e-07 "),
     ("cells and cell_size", dict(cell_size=0.1), ValueError, "not both"),
     ("gamma zero", dict(gamma=0.0), ValueError, "gamma"),
     ("gamma NaN", dict(gamma=float("nan")), ValueError, "gamma"),
     ("unknown weights", dict(weights="cubic"), ValueError, "weights"),
     ("unknown device", dict(device="tpu"), ValueError, "device"),
-    ("memory limit", dict(cells=None, cell_size=0.01, max_bytes=1000), MemoryError, "MiB"),
+    ("memory limit", dict(cells=None, cell_size=0.01, max_bytes=1000), MemoryError, "MiB (limit 1000 B)"),
 ]
 
 
@@ -179,6 +179,9 @@ def test_cell_splitting_over_the_memory_limit_is_a_clear_error():
         cells = int(re.search(r"analyse (\d+) cells", message).group(1))
         assert cells >= 8  # the cells between the two boxes
         assert limits[k] - plain >= cells * k ** 3, (k, limits[k], plain, cells)
+        # Both sizes as read, never "0.0 MiB" for a limit of a few KiB.
+        need, left = re.search(r"up to ([\d.]+ [KMG]?i?B) of .* over the ([\d.]+ [KMG]?i?B) the grid", message).groups()
+        assert float(need.split()[0]) > 0 and float(left.split()[0]) > 0, message
         d = larap.Deformer(V, F, cell_size=1.0, split_resolution=k, max_bytes=limits[k])
         assert d.num_cells > larap.Deformer(V, F, cell_size=1.0, split_cells=False).num_cells  # it split
     assert plain < limits[8] < limits[24]

@@ -530,8 +530,6 @@ def test_bind_memory_error_leaves_mesh_untouched(core, monkeypatch):
         before = key_state(obj)
         import larap
         if name == "__init__":
-            real = larap.Deformer.__init__
-
             def init(self, *a, **k):
                 raise MemoryError("lattice needs 99999 MiB")
             monkeypatch.setattr(larap.Deformer, "__init__", init)

@@ -1,19 +1,23 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """What the add-on costs per move in a large scene: one live tube among N other objects.
 
-Run (headless; --root: the checkout whose add-on and engine are loaded, default this one):
+Run (--root: the checkout whose add-on and engine are loaded, default this one):
   blender -b --factory-startup --python-exit-code 1 --python scripts/bench_scene_size.py -- \
       [--sizes 1000 5000 20000] [--root CHECKOUT] [--repeats 15] [--out FILE | --no-write]
+or in a window (Xvfb is enough), which also times the GPU preview's draw callback:
+  xvfb-run -a -s "-screen 0 1280x800x24" blender --factory-startup --python scripts/bench_scene_size.py -- ...
 
 The scene: a closed tube of about 20,000 vertices bound with two handles as an artist makes them
 (vertex groups of its end rings, x < -1.6 and x > 1.6: 10% of its vertices each, following two
 Empties), Live on, the default lattice; then N objects more, half Empties and half meshes sharing
-one triangle. For each N, medians over --repeats moves of:
+one triangle (in a window, hidden, so that Blender's own drawing stays small). For each N, the
+median and the largest over --repeats moves of:
   * the add-on's depsgraph handler when an Empty that drives nothing moves (Blender reports the
     move; the add-on must find that no live mesh follows it);
   * the same handler when a handle's Empty moves (the solve and, headless, the write of the pose
     key: the GPU preview, which writes nothing per move, needs a window);
   * the meshes a handle's Empty drives, as the sidebar asks at each redraw while it is active;
+  * in a window: the preview's draw callback per redraw of the 3D View, the tube's pose shown;
   * Blender's own update for the unrelated move with the add-on disabled, for scale.
 Prints a table and appends it (markdown) to docs/results-blender.md unless --no-write.
 """
@@ -23,6 +27,7 @@ import os
 import statistics
 import sys
 import time
+import types
 
 import bpy
 import numpy as np
@@ -49,7 +54,11 @@ def enable(root):
     import addon_utils
     for path in (os.path.join(root, "addon"), os.path.join(root, "python")):
         sys.path.insert(0, os.path.abspath(path))
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if bpy.app.background:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+    else:  # reading the factory settings from a timer in a window makes Blender 3.4 crash at quit
+        for obj in list(bpy.data.objects):
+            bpy.data.objects.remove(obj)
     mod = addon_utils.enable("larap_blender", default_set=True)
     if mod is None or not hasattr(bpy.types.Object, "larap"):
         raise SystemExit("could not enable the larap_blender add-on from %s" % root)
@@ -101,6 +110,7 @@ def fill(scene, count, made):
     while made < count:
         o = bpy.data.objects.new("filler_%06d" % made, me if made % 2 else None)
         o.location = (made % 100 * 0.2, made // 100 % 100 * 0.2, 5.0 + made // 10000)
+        o.hide_viewport = not bpy.app.background
         scene.collection.objects.link(o)
         made += 1
     bpy.context.view_layer.update()
@@ -109,6 +119,36 @@ def fill(scene, count, made):
 
 def median_ms(xs):
     return 1e3 * statistics.median(xs)
+
+
+def spread(xs):
+    """(median, largest) in ms."""
+    return 1e3 * statistics.median(xs), 1e3 * max(xs)
+
+
+def draw_times(repeats):
+    """The preview's draw callback, timed over ``repeats`` redraws of the 3D View (None: no window
+    or no preview showing)."""
+    from larap_blender import preview
+    if bpy.app.background or not preview._SHOWN:
+        return None
+    sys.path.insert(0, HERE)
+    import blender_window
+    win, area, region = blender_window.view3d()
+    times = []
+    bpy.types.SpaceView3D.draw_handler_remove(preview._DRAW_HANDLE, "WINDOW")
+
+    def timed():
+        t0 = time.perf_counter()
+        preview.draw()
+        times.append(time.perf_counter() - t0)
+    preview._DRAW_HANDLE = bpy.types.SpaceView3D.draw_handler_add(timed, (), "WINDOW", "POST_VIEW")
+    with bpy.context.temp_override(window=win, area=area, region=region):
+        for _ in range(repeats):
+            bpy.ops.wm.redraw_timer(type="DRAW", iterations=1)
+    bpy.types.SpaceView3D.draw_handler_remove(preview._DRAW_HANDLE, "WINDOW")
+    preview._DRAW_HANDLE = bpy.types.SpaceView3D.draw_handler_add(preview.draw, (), "WINDOW", "POST_VIEW")
+    return spread(times) if times else None
 
 
 def main():
@@ -129,23 +169,25 @@ def main():
         for _ in range(args.repeats):
             other.location.x += 0.01
             bpy.context.view_layer.update()
-        unrelated = median_ms(times)
+        unrelated = spread(times)
         times.clear()
         for _ in range(args.repeats):
             targets[1].location.z += 0.002
             bpy.context.view_layer.update()
-        target = median_ms(times)
-        bpy.context.view_layer.objects.active = targets[1]
-        ctx = bpy.context
+        target = spread(times)
+        draw = draw_times(args.repeats)
+        ctx = types.SimpleNamespace(object=targets[1])  # the context the sidebar draws in, its target active
         panel = []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
             driven = core.posed_meshes(ctx)
             panel.append(time.perf_counter() - t0)
         assert driven == [obj], driven
-        rows.append(dict(objects=len(scene.objects), unrelated=unrelated, target=target, panel=median_ms(panel)))
-        print("objects %6d: handler, unrelated move %.3f ms; handler, target move %.2f ms; driven meshes %.3f ms"
-              % (rows[-1]["objects"], unrelated, target, rows[-1]["panel"]))
+        rows.append(dict(objects=len(scene.objects), unrelated=unrelated, target=target, panel=spread(panel),
+                         draw=draw))
+        print("objects %6d: handler, unrelated move %.3f (max %.3f) ms; handler, target move %.2f (max %.2f) ms; "
+              "driven meshes %.3f (max %.3f) ms%s" % (rows[-1]["objects"], *unrelated, *target, *rows[-1]["panel"],
+                                                       "; preview draw %.3f (max %.3f) ms" % draw if draw else ""))
     restore()
     import addon_utils
     addon_utils.disable("larap_blender", default_set=True)
@@ -161,14 +203,19 @@ def main():
 def report(args, rows, off, n_vertices, shares):
     stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = ["", "### Per move in a large scene (`scripts/bench_scene_size.py`, %s)" % stamp, "",
-             "%s; Blender %s, headless; add-on from `%s`; a live tube of %d vertices, 2 handles "
-             "(vertex groups of %.0f%% and %.0f%% of its vertices), medians of %d moves:"
-             % (machine_info.describe(), bpy.app.version_string, os.path.realpath(args.root), n_vertices,
-                shares[0], shares[1], args.repeats), "",
-             "| objects | add-on's handler, unrelated move (ms) | handler, target move: solve and write (ms) "
-             "| meshes a target drives (ms) |", "|---|---|---|---|"]
+             "%s; Blender %s, %s; add-on from `%s`; a live tube of %d vertices, 2 handles "
+             "(vertex groups of %.0f%% and %.0f%% of its vertices), median / largest of %d moves (ms):"
+             % (machine_info.describe(), bpy.app.version_string,
+                "headless" if bpy.app.background else "in a window (fillers hidden)", os.path.realpath(args.root),
+                n_vertices, shares[0], shares[1], args.repeats), "",
+             "| objects | add-on's handler, unrelated move | handler, target move: %s "
+             "| meshes a target drives | preview's draw callback |"
+             % ("solve and write" if bpy.app.background else "solve (the preview writes nothing)"),
+             "|---|---|---|---|---|"]
     for r in rows:
-        lines.append("| %d | %.3f | %.2f | %.3f |" % (r["objects"], r["unrelated"], r["target"], r["panel"]))
+        lines.append("| %d | %.3f / %.3f | %.2f / %.2f | %.3f / %.3f | %s |" % (
+            r["objects"], *r["unrelated"], *r["target"], *r["panel"],
+            "%.3f / %.3f" % r["draw"] if r["draw"] else "(headless)"))
     lines += ["", "Blender's own update for the unrelated move at %d objects, add-on disabled: %.2f ms."
               % (rows[-1]["objects"], off), ""]
     text = "\n".join(lines)
@@ -179,4 +226,12 @@ def report(args, rows, off, n_vertices, shares):
 
 
 if __name__ == "__main__":
-    main()
+    if bpy.app.background:
+        main()
+    else:  # in a window: once it is drawn, then quit
+        def run():
+            try:
+                main()
+            finally:
+                bpy.ops.wm.quit_blender()
+        bpy.app.timers.register(run, first_interval=1.0)

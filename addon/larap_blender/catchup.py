@@ -43,14 +43,22 @@ from .solving import key_up_to_date, solve, stored_signature
 DELAY = 0.4  # seconds after the last move
 
 
-def _objects_by_key():
-    out = {}
-    for obj in scene_index.bound_meshes(None):
-        try:
-            if obj.larap.bound and obj.larap.runtime_id:
-                out[obj.larap.runtime_id] = obj
-        except ReferenceError:
-            continue
+def _objects_by_key(keys=()):
+    """The file's bound meshes by runtime id. When one of ``keys`` is missing from the kept list
+    (scene_index), the file is read again before the caller decides that its mesh is gone (a
+    Scene > New > Full Copy reports nothing to any handler)."""
+    for fresh in (False, True):
+        if fresh:
+            scene_index.invalidate()
+        out = {}
+        for obj in scene_index.bound_meshes(None):
+            try:
+                if obj.larap.bound and obj.larap.runtime_id:
+                    out[obj.larap.runtime_id] = obj
+            except ReferenceError:
+                continue
+        if all(key in out for key in keys):
+            break
     return out
 
 
@@ -98,9 +106,10 @@ def catch_up_all(*_args):
     """Catch up every mesh that is behind (main thread only: handlers of threaded jobs skip)."""
     if threading.current_thread() is not threading.main_thread():
         return 0
-    objects = _objects_by_key()
+    keys = list(pending())
+    objects = _objects_by_key(keys)
     done = 0
-    for key in list(pending()):
+    for key in keys:
         obj = objects.get(key)
         if obj is None:
             preview.forget(key)
@@ -116,9 +125,10 @@ def _timer():
     """bpy.app.timers callback: catch up the meshes whose last move is DELAY seconds old;
     returns the time to the next check while some are still moving (None: done)."""
     now = time.monotonic()
-    objects = _objects_by_key()
+    keys = list(pending())
+    objects = _objects_by_key(keys)
     wait = None
-    for key in list(pending()):
+    for key in keys:
         rt = _RUNTIMES.get(key)
         obj = objects.get(key)
         if obj is None:

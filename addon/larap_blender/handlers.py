@@ -86,14 +86,16 @@ def live_update(scene, updated_names=None):
     solved = 0
     render = rendering()
     with suspend_live():
-        for obj in list(scene_index.bound_meshes(scene)):
+        meshes = list(scene_index.bound_meshes(scene))
+        new = scene_index.take_new(scene)  # found since the last look: their targets may have moved unseen
+        for obj in meshes:
             try:
                 if obj.type != "MESH" or not obj.larap.bound or not obj.larap.live:
                     continue
             except ReferenceError:
                 continue
             targets = target_names(obj)
-            if updated_names is not None and not (targets & updated_names):
+            if updated_names is not None and not (targets & updated_names) and obj.as_pointer() not in new:
                 continue
             rt = runtime(obj)
             sig = target_signature(obj)
@@ -197,7 +199,15 @@ def refresh_preview(objects, meshes):
 
 @persistent
 def larap_frame_change_post(scene, depsgraph=None):
-    """Animated targets: depsgraph_update_post does not fire on frame changes."""
+    """Animated targets: depsgraph_update_post does not fire on frame changes, so what the frame's
+    evaluation reports (a mesh linked by a script or another add-on's frame_change_pre) is told
+    to scene_index here."""
+    if depsgraph is not None:
+        try:
+            for update in depsgraph.updates:
+                scene_index.note_updated(update.id)
+        except ReferenceError:
+            scene_index.invalidate()
     if not live_suspended():
         live_update(scene, None)
 
@@ -207,7 +217,7 @@ def larap_load_pre(*_args):
     """Another file replaces this one: no preview or pending catch-up carries over. Nothing is
     caught up here: the open file's unsaved state (a pending pose too) is being discarded, and a
     save offered first went through save_pre, which caught up."""
-    scene_index.invalidate()
+    scene_index.forget_all()
     catchup.cancel_timer()
     preview.reset_all()
 
@@ -230,7 +240,7 @@ def larap_load_post(*_args):
     pose key was saved behind their targets catch up; an up-to-date file is left as it is.
     Settings stored by an older version are brought up to date first, keeping their pose
     (props.upgrade_settings), so that the catch-up compares like with like."""
-    scene_index.invalidate()
+    scene_index.forget_all()
     upgrade_all_settings()
     drop_runtime()
     preview.reset_all()
@@ -243,7 +253,7 @@ def larap_undo_post(*_args):
     engines re-validate and forget their warm start; objects stored hidden behind a preview are
     shown again; live meshes whose restored pose key is behind their restored targets catch up
     (the same targets give the same pose, so undo shows the caught-up pose)."""
-    scene_index.invalidate()
+    scene_index.forget_all()
     after_undo()
     upgrade_all_settings()  # a step stored before an older object's upgrade
     refresh_warnings_after_undo()
@@ -274,7 +284,7 @@ def refresh_warnings_after_undo():
 def larap_before_swap(*_args):
     """undo_pre/redo_pre: the objects held between updates (scene_index) are about to be
     replaced; nothing reads them until they are found again."""
-    scene_index.invalidate()
+    scene_index.forget_all()
 
 
 @persistent

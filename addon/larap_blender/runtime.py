@@ -145,6 +145,8 @@ def drop_runtime(obj_or_key=None):
 
 
 def _bound_meshes():
+    """The file's bound meshes, read now (pruning drops what is not there)."""
+    scene_index.invalidate()
     for obj in scene_index.bound_meshes(None):
         try:
             if obj.larap.bound and obj.larap.runtime_id:

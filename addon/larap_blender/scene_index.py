@@ -3,27 +3,33 @@
 
 Live posing asks, at each depsgraph update, which bound meshes a scene holds; every handle asks
 whether its target is still in a scene; the preview asks whether a mesh is in the view layer and
-draws the bound meshes it shows. Each answer, read from Blender directly, costs time in proportion
-to the objects of the file (``scene.objects``, ``Object.users_scene`` and ``view_layer.objects``
-are walked in full). Measured on 2026-11-23 (Blender 3.4.1, this 2-core machine, headless): in a
-scene of 20,000 objects, an Empty moved under a live 2-handle mesh took 194-299 ms per depsgraph
-update, of which the add-on's scans were about 150 ms (add-on off: 34 ms for a move of another
-object). Here they are kept between updates:
+draws the bound meshes it shows; the sidebar asks which meshes an active target drives. Read from
+Blender directly, each answer costs time in proportion to the objects of the file
+(``scene.objects``, ``Object.users_scene``, which in Blender 3.4 is Python listing every object of
+every scene, ``view_layer.objects``, ``bpy.data.objects``). With 20,000 objects the add-on's
+depsgraph handler took 13 ms for the move of an unrelated Empty and 48-50 ms for a handle's Empty
+(docs/results-blender.md, scripts/bench_scene_size.py). Here the answers are kept between updates:
 
-* :func:`bound_meshes`: the bound mesh objects of a scene (all, live or not);
+* :func:`bound_meshes`: the bound mesh objects of a scene, or of the file (all, live or not);
 * :func:`target_alive`: whether an object is in some scene (a deleted target is kept as an orphan
   by the handle's pointer and is in none);
 * :func:`in_view_layer`: whether an object has a base in a view layer.
 
 They are forgotten (:func:`invalidate`) whenever what they depend on may have changed: Blender
-reports a Scene or Collection among a depsgraph update's IDs whenever an object is linked or
-unlinked, deleted, duplicated or added, a collection is linked, unlinked or excluded (checked for
-each of these on Blender 3.4.1; handlers.larap_depsgraph_update_post calls :func:`note_updated`),
-an undo or redo or a file load swaps the data (pre and post handlers), and the add-on binds or
-unbinds a mesh. As a net for a change made some other way (a script setting ``bound``, another
-add-on's handler), nothing is kept longer than :data:`MAX_AGE` seconds while it is being read:
-a missed change shows within that time. Object references are held only between these points; a
-reference to an object removed since raises ReferenceError, which every reader catches.
+reports a Scene or Collection among the IDs of an update whenever an object is linked or unlinked,
+deleted, duplicated or added, a collection is linked, unlinked or excluded (checked for each of
+these on Blender 3.4.1; the depsgraph and frame-change handlers call :func:`note_updated`), when
+the add-on or a script binds or unbinds a mesh (the ``bound`` property's update), and entirely
+(:func:`forget_all`) before and after an undo, a redo or a file load. As a net for a change made
+some other way (Scene > New > Full Copy reports nothing; another add-on's handler), nothing is
+kept longer than :data:`MAX_AGE` seconds while it is being read, and a mesh that a list finds for
+the first time is looked at by Live at the next update whatever that update reported
+(:func:`take_new`): such a change shows at the first update after that second. Where a kept answer
+would be the reason to drop something (the catch-up deciding that a pending mesh is gone, the
+runtime cache pruned), the caller reads the file again first. Object references are held only
+between these points; one to an object removed since raises ReferenceError, which every reader
+catches; an entry is used only for the very object it was made for (a freed object's address is
+soon reused).
 """
 import time
 
@@ -33,17 +39,27 @@ MAX_AGE = 1.0  # seconds a cached answer is trusted without another reason to lo
 
 _GENERATION = [0]
 _BOUND = {}    # scene pointer -> (generation, time, [bound mesh objects])
-_ALIVE = {}    # object pointer -> (generation, time, in some scene)
-_IN_LAYER = {}  # (view layer pointer, object pointer) -> (generation, time, has a base there)
+_ALIVE = {}    # object pointer -> (generation, time, in some scene, the object)
+_IN_LAYER = {}  # (view layer pointer, object pointer) -> (generation, time, has a base there, the object)
+_SEEN = {}     # scene pointer -> {object pointer: object} of the last list read
+_NEW = {}      # scene pointer -> pointers of meshes the lists read since the last take_new lacked before
 
 
 def invalidate(*_args):
     """Something the answers depend on may have changed: read Blender again at the next question.
-    Usable as a handler (undo_pre, load_pre...)."""
+    Usable as a handler."""
     _GENERATION[0] += 1
     _BOUND.clear()
     _ALIVE.clear()
     _IN_LAYER.clear()
+
+
+def forget_all(*_args):
+    """Undo, redo, a file load: the objects themselves are replaced; even which meshes were seen
+    before is forgotten (every bound mesh is new to the next list)."""
+    invalidate()
+    _SEEN.clear()
+    _NEW.clear()
 
 
 def note_updated(idd):
@@ -72,7 +88,20 @@ def bound_meshes(scene):
         except ReferenceError:
             continue
     _BOUND[key] = (_GENERATION[0], time.monotonic(), found)
+    if scene is None:
+        return found
+    seen = _SEEN.get(key, {})
+    now = {obj.as_pointer(): obj for obj in found}
+    _NEW.setdefault(key, set()).update(p for p, obj in now.items() if seen.get(p) is not obj)
+    _SEEN[key] = now
     return found
+
+
+def take_new(scene):
+    """Pointers of the bound meshes of ``scene`` that the lists read since the last call found
+    and the list before them lacked (a mesh linked, bound or duplicated in a way no update
+    reported): Live looks at these whatever the update reported. Clears them."""
+    return _NEW.pop(scene.as_pointer(), set())
 
 
 def target_alive(target):
@@ -82,12 +111,12 @@ def target_alive(target):
     try:
         key = target.as_pointer()
         entry = _ALIVE.get(key)
-        if _fresh(entry):
+        if _fresh(entry) and entry[3] is target:  # (a freed object's address is soon reused)
             return entry[2]
         alive = len(target.users_scene) > 0
     except ReferenceError:
         return False
-    _ALIVE[key] = (_GENERATION[0], time.monotonic(), alive)
+    _ALIVE[key] = (_GENERATION[0], time.monotonic(), alive, target)
     return alive
 
 
@@ -99,10 +128,10 @@ def in_view_layer(obj, view_layer):
     try:
         key = (view_layer.as_pointer(), obj.as_pointer())
         entry = _IN_LAYER.get(key)
-        if _fresh(entry):
+        if _fresh(entry) and entry[3] is obj:
             return entry[2]
         inside = view_layer.objects.get(obj.name) == obj
     except ReferenceError:
         return False
-    _IN_LAYER[key] = (_GENERATION[0], time.monotonic(), inside)
+    _IN_LAYER[key] = (_GENERATION[0], time.monotonic(), inside, obj)
     return inside

@@ -73,22 +73,112 @@ def test_the_preview_sees_a_collection_excluded_at_once(core, gpu_preview):
     assert not gpu_preview.blocker(obj)
 
 
-def test_a_change_the_index_is_not_told_of_shows_within_max_age(core, monkeypatch):
+def test_a_change_the_index_is_not_told_of_shows_at_the_first_update_after_max_age(core, monkeypatch):
     """Bound set behind the add-on's back (the ID property written directly: no update callback,
-    no depsgraph report): unseen while the kept list is fresh, seen once it is MAX_AGE old."""
+    no depsgraph report) while the mesh's target moves: the first update after the kept list is
+    MAX_AGE old reads it again, finds the mesh new to it and poses it, though that update moved
+    only an unrelated object."""
     from larap_blender import scene_index
     obj, rest, left, right, targets = bar_with_handles(core)
     obj.larap.live = True
     scene = bpy.context.scene
+    other = bpy.data.objects.new("Unrelated", None)
+    scene.collection.objects.link(other)
+    bpy.context.view_layer.update()  # the link reported (and the lists forgotten) now, not later
     obj.larap["bound"] = False
     scene_index.invalidate()
     assert obj not in scene_index.bound_meshes(scene)  # kept without it
     obj.larap["bound"] = True
     live_move(targets[1], 0.3)
-    assert moved_by(obj, rest, right, 0.0)  # not seen yet
     monkeypatch.setattr(scene_index, "MAX_AGE", 0.0)
-    live_move(targets[1], 0.2)
+    live_move(other, 0.1)
+    assert moved_by(obj, rest, right, 0.3)
+
+
+def test_a_mesh_linked_by_a_script_before_a_frame_step_is_posed_in_that_frame(core):
+    """Changes a frame's evaluation carries (a pipeline script linking an asset, then frame_set)
+    reach frame_change_post only: it tells the index too."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    scene = bpy.context.scene
+    scene.collection.objects.unlink(obj)
+    bpy.context.view_layer.update()
+    scene.frame_set(2)  # the scene's bound meshes read: none
+    scene.collection.objects.link(obj)
+    targets[1].location.z += 0.3
+    scene.frame_set(3)
+    assert moved_by(obj, rest, right, 0.3)
+
+
+def test_the_catch_up_of_a_full_copy_of_the_scene_is_not_dropped(core):
+    """Scene > New > Full Copy reports nothing to any handler; the catch-up must not decide from
+    the kept list of the file's bound meshes that the copy's pending pose has no mesh."""
+    from larap_blender import catchup, solving
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets[1], 0.3)
+    catchup.catch_up_all()  # the file's bound meshes are kept now
+    assert solving.key_up_to_date(obj)
+    assert bpy.ops.scene.new(type="FULL_COPY") == {"FINISHED"}
+    copy = next(o for o in bpy.context.scene.objects if o.type == "MESH")
+    assert copy != obj
+    live_move(copy.larap.handles[1].target, 0.2)
+    catchup.catch_up_all()
+    assert solving.key_up_to_date(copy) and moved_by(copy, rest, right, 0.5)
+
+
+def test_the_catch_up_reads_the_file_again_before_it_drops_a_pending_mesh(core):
+    """A mesh behind its targets, missing from the kept list of the file's bound meshes (bound
+    set behind the add-on's back): the catch-up looks again and writes its pose rather than
+    forgetting it."""
+    from larap_blender import catchup, handlers, scene_index, solving
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets[1], 0.3)
+    catchup.catch_up_all()
+    obj.larap["bound"] = False
+    scene_index.invalidate()
+    assert obj not in scene_index.bound_meshes(None)  # kept without it
+    obj.larap["bound"] = True
+    with handlers.suspend_live():
+        live_move(targets[1], 0.2)
+    core.runtime(obj).needs_catchup = True  # as a live move leaves it
+    catchup.catch_up_all()
+    assert solving.key_up_to_date(obj) and moved_by(obj, rest, right, 0.5)
+
+
+def test_an_undo_right_after_the_lists_were_read_keeps_the_engines(core):
+    """Undo replaces the objects: the lists kept before it are not what undo_post prunes the
+    runtime cache by (it would drop every engine and rebuild them)."""
+    from larap_blender import catchup, scene_index
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets[1], 0.3)
+    assert bpy.ops.ed.undo_push(message="posed") == {"FINISHED"}
+    live_move(targets[0], 0.1)
+    assert bpy.ops.ed.undo_push(message="moved") == {"FINISHED"}
+    catchup.catch_up_all()
+    scene_index.bound_meshes(None), scene_index.bound_meshes(bpy.context.scene)
+    key = obj.larap.runtime_id
+    engine = core._RUNTIMES[key]
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    assert core._RUNTIMES.get(key) is engine
+    obj, target = bpy.data.objects["Bar"], bpy.data.objects["LARAP_target_Right"]
+    live_move(target, 0.2)
     assert moved_by(obj, rest, right, 0.5)
+
+
+def test_an_answer_is_not_given_for_another_object_at_the_same_address(core):
+    """A freed object's address is soon reused (a script removes an orphan and makes an Empty):
+    the kept answer belongs to the object it was made for."""
+    from larap_blender import scene_index
+    bar_with_handles(core)
+    orphan = bpy.data.objects.new("Orphan", None)
+    assert not scene_index.target_alive(orphan)
+    bpy.data.objects.remove(orphan)
+    empty = bpy.data.objects.new("Empty", None)
+    bpy.context.scene.collection.objects.link(empty)
+    assert scene_index.target_alive(empty)
 
 
 def test_bound_set_by_a_script_is_seen_at_once(core):

@@ -10,7 +10,8 @@ or in a window (Xvfb is enough), which also times the GPU preview's draw callbac
 The scene: a closed tube of about 20,000 vertices bound with two handles as an artist makes them
 (vertex groups of its end rings, x < -1.6 and x > 1.6: 10% of its vertices each, following two
 Empties), Live on, the default lattice; then N objects more, half Empties and half meshes sharing
-one triangle (in a window, hidden, so that Blender's own drawing stays small). For each N, the
+one triangle (in a window, hidden with H, so that Blender's own drawing stays small while the
+depsgraph still holds them). For each N, the
 median and the largest over --repeats moves of:
   * the add-on's depsgraph handler when an Empty that drives nothing moves (Blender reports the
     move; the add-on must find that no live mesh follows it);
@@ -110,8 +111,9 @@ def fill(scene, count, made):
     while made < count:
         o = bpy.data.objects.new("filler_%06d" % made, me if made % 2 else None)
         o.location = (made % 100 * 0.2, made // 100 % 100 * 0.2, 5.0 + made // 10000)
-        o.hide_viewport = not bpy.app.background
         scene.collection.objects.link(o)
+        if not bpy.app.background:
+            o.hide_set(True)  # hidden in the view layer, still evaluated (not Disable in Viewports)
         made += 1
     bpy.context.view_layer.update()
     return made
@@ -206,7 +208,7 @@ def report(args, rows, off, n_vertices, shares):
              "%s; Blender %s, %s; add-on from `%s`; a live tube of %d vertices, 2 handles "
              "(vertex groups of %.0f%% and %.0f%% of its vertices), median / largest of %d moves (ms):"
              % (machine_info.describe(), bpy.app.version_string,
-                "headless" if bpy.app.background else "in a window (fillers hidden)", os.path.realpath(args.root),
+                "headless" if bpy.app.background else "in a window (fillers hidden with H)", os.path.realpath(args.root),
                 n_vertices, shares[0], shares[1], args.repeats), "",
              "| objects | add-on's handler, unrelated move | handler, target move: %s "
              "| meshes a target drives | preview's draw callback |"

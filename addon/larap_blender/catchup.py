@@ -46,7 +46,7 @@ DELAY = 0.4  # seconds after the last move
 def _objects_by_key(keys=()):
     """The file's bound meshes by runtime id. When one of ``keys`` is missing from the kept list
     (scene_index), the file is read again before the caller decides that its mesh is gone (a
-    Scene > New > Full Copy reports nothing to any handler)."""
+    mesh bound or linked in a way no handler was told of)."""
     for fresh in (False, True):
         if fresh:
             scene_index.invalidate()

@@ -203,11 +203,7 @@ def larap_frame_change_post(scene, depsgraph=None):
     evaluation reports (a mesh linked by a script or another add-on's frame_change_pre) is told
     to scene_index here."""
     if depsgraph is not None:
-        try:
-            for update in depsgraph.updates:
-                scene_index.note_updated(update.id)
-        except ReferenceError:
-            scene_index.invalidate()
+        scene_index.note_evaluated(depsgraph)
     if not live_suspended():
         live_update(scene, None)
 

@@ -145,8 +145,6 @@ def drop_runtime(obj_or_key=None):
 
 
 def _bound_meshes():
-    """The file's bound meshes, read now (pruning drops what is not there)."""
-    scene_index.invalidate()
     for obj in scene_index.bound_meshes(None):
         try:
             if obj.larap.bound and obj.larap.runtime_id:
@@ -156,7 +154,9 @@ def _bound_meshes():
 
 
 def prune_runtimes():
-    """Forget runtimes whose object is gone or unbound (cheap; called from handlers)."""
+    """Forget runtimes whose object is gone or unbound (cheap; called from handlers). The file is
+    read now, not taken from scene_index's kept list: what is missing is dropped."""
+    scene_index.invalidate()
     alive = {obj.larap.runtime_id for obj in _bound_meshes()}
     for key in list(_RUNTIMES):
         if key not in alive:

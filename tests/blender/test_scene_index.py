@@ -111,8 +111,9 @@ def test_a_mesh_linked_by_a_script_before_a_frame_step_is_posed_in_that_frame(co
 
 
 def test_the_catch_up_of_a_full_copy_of_the_scene_is_not_dropped(core):
-    """Scene > New > Full Copy reports nothing to any handler; the catch-up must not decide from
-    the kept list of the file's bound meshes that the copy's pending pose has no mesh."""
+    """Scene > New > Full Copy reports nothing to depsgraph_update_post, only to frame_change_post
+    (every ID of the new scene): the catch-up must not decide from a kept list of the file's bound
+    meshes that the copy's pending pose has no mesh."""
     from larap_blender import catchup, solving
     obj, rest, left, right, targets = bar_with_handles(core)
     obj.larap.live = True
@@ -192,3 +193,27 @@ def test_bound_set_by_a_script_is_seen_at_once(core):
     assert obj not in scene_index.bound_meshes(scene)
     obj.larap.bound = True
     assert obj in scene_index.bound_meshes(scene) and obj in scene_index.bound_meshes(None)
+
+
+def test_the_view_layer_answer_is_not_given_for_another_object_at_the_same_address(core):
+    from larap_blender import scene_index
+    bar_with_handles(core)
+    view_layer = bpy.context.view_layer
+    first = bpy.data.objects.new("First", None)
+    bpy.context.scene.collection.objects.link(first)
+    view_layer.update()  # its base is made when the view layer is synced
+    assert scene_index.in_view_layer(first, view_layer)
+    bpy.data.objects.remove(first)
+    second = bpy.data.objects.new("Second", None)  # in no collection
+    assert not scene_index.in_view_layer(second, view_layer)
+
+
+def test_a_scene_made_where_a_removed_one_was_does_not_get_its_meshes(core):
+    from larap_blender import scene_index
+    obj, *_ = bar_with_handles(core)
+    old = bpy.data.scenes.new("Old")
+    old.collection.objects.link(obj)
+    assert obj in scene_index.bound_meshes(old)
+    bpy.data.scenes.remove(old)
+    new = bpy.data.scenes.new("New")
+    assert obj not in scene_index.bound_meshes(new)

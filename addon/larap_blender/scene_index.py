@@ -21,9 +21,10 @@ deleted, duplicated or added, a collection is linked, unlinked or excluded (chec
 these on Blender 3.4.1; the depsgraph handler calls :func:`note_updated`, the frame-change handler
 :func:`note_evaluated`, which also sees Scene > New > Full Copy), when the add-on or a script
 binds or unbinds a mesh (the ``bound`` property's update), and entirely (:func:`forget_all`)
-before and after an undo, a redo or a file load. A selection click and a frame step report the
-Scene too, so the next move reads the lists again (about 1.4 ms for a scene's bound meshes and
-0.4 ms per handle target at 20,000 objects). As a net for a change made some other way (another
+before and after an undo, a redo or a file load. A selection click and a frame step by the frame
+operators (arrow keys, the timeline; not playback or ``scene.frame_set``) report the Scene too, so
+the next move reads the lists again (about 1.4 ms for a scene's bound meshes and 2-4 ms per handle
+target at 20,000 objects). As a net for a change made some other way (another
 add-on's handler, a script writing ``bound`` as an ID property), nothing is kept longer than
 :data:`MAX_AGE` seconds while it is being read, and a mesh that a list finds for the first time
 is looked at by Live at the next update whatever that update reported (:func:`take_new`): such a
@@ -32,8 +33,8 @@ drop something (the catch-up deciding that a pending mesh is gone, the runtime c
 caller reads the file again first. The lists' object references are held until the next
 invalidation, and the last list's per scene (compared by identity only, never read) until an
 undo, redo or load; a reference to an object removed since raises ReferenceError, which every
-reader catches. An entry is used only for the very object or scene it was made for (a freed
-address is soon reused).
+reader catches. An entry is used only for the very object, scene or view layer it was made for
+(a freed address is soon reused).
 """
 import time
 
@@ -44,7 +45,8 @@ MAX_AGE = 1.0  # seconds a cached answer is trusted without another reason to lo
 _GENERATION = [0]
 _BOUND = {}    # scene pointer -> (generation, time, [bound mesh objects], the scene)
 _ALIVE = {}    # object pointer -> (generation, time, in some scene, the object)
-_IN_LAYER = {}  # (view layer pointer, object pointer) -> (generation, time, has a base there, the object)
+_IN_LAYER = {}  # (view layer pointer, object pointer) -> (generation, time, has a base there, the object,
+#                (the view layer's scene, its name))
 _SEEN = {}     # scene pointer -> (the scene, {object pointer: object} of its last list read)
 _NEW = {}      # scene pointer -> pointers of meshes the lists read since the last take_new lacked before
 
@@ -131,13 +133,10 @@ def target_alive(target):
         entry = _ALIVE.get(key)
         if _fresh(entry) and entry[3] is target:  # (a freed object's address is soon reused)
             return entry[2]
-        # In a scene when one of its collections is in a scene's tree. (Object.users_scene, the
-        # same answer, lists every object of every scene in Python: 2.3 ms at 20,000 objects;
-        # users_collection is walked in C, 0.4 ms.)
-        in_scenes = {sc.collection.as_pointer() for sc in bpy.data.scenes}
-        for sc in bpy.data.scenes:
-            in_scenes.update(c.as_pointer() for c in sc.collection.children_recursive)
-        alive = any(c.as_pointer() in in_scenes for c in target.users_collection)
+        # Object.users_scene lists every object of every scene (Python in Blender 3.4: 2-4 ms at
+        # 20,000 objects); users_collection, which could answer too, walks every collection's
+        # objects in Python and costs more in files of many collections.
+        alive = len(target.users_scene) > 0
     except ReferenceError:
         return False
     _ALIVE[key] = (_GENERATION[0], time.monotonic(), alive, target)
@@ -151,11 +150,15 @@ def in_view_layer(obj, view_layer):
         return False
     try:
         key = (view_layer.as_pointer(), obj.as_pointer())
+        # A view layer has no lasting Python object to compare: its scene and name stand for it.
+        owner = (view_layer.id_data, view_layer.name)
         entry = _IN_LAYER.get(key)
-        if _fresh(entry) and entry[3] is obj:
+        if _fresh(entry) and entry[3] is obj and entry[4][0] is owner[0] and entry[4][1] == owner[1]:
             return entry[2]
-        inside = view_layer.objects.get(obj.name) == obj
+        found = view_layer.objects.get(obj.name)
+        # (a linked object of the same name may be the one found by name)
+        inside = found == obj or (found is not None and obj in view_layer.objects[:])
     except ReferenceError:
         return False
-    _IN_LAYER[key] = (_GENERATION[0], time.monotonic(), inside, obj)
+    _IN_LAYER[key] = (_GENERATION[0], time.monotonic(), inside, obj, owner)
     return inside

@@ -217,3 +217,21 @@ def test_a_scene_made_where_a_removed_one_was_does_not_get_its_meshes(core):
     bpy.data.scenes.remove(old)
     new = bpy.data.scenes.new("New")
     assert obj not in scene_index.bound_meshes(new)
+
+
+def test_a_view_layer_made_where_a_removed_one_was_gets_its_own_answer(core):
+    from larap_blender import scene_index
+    obj, *_ = bar_with_handles(core)
+    scene = bpy.context.scene
+    props = bpy.data.collections.new("Props")
+    scene.collection.children.link(props)
+    props.objects.link(obj)
+    scene.collection.objects.unlink(obj)
+    first = scene.view_layers.new("First")
+    first.layer_collection.children["Props"].exclude = True
+    first.update()
+    assert not scene_index.in_view_layer(obj, first)
+    scene.view_layers.remove(first)
+    second = scene.view_layers.new("Second")  # Props included
+    second.update()
+    assert scene_index.in_view_layer(obj, second)

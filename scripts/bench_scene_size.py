@@ -134,7 +134,6 @@ def draw_times(repeats):
     from larap_blender import preview
     if bpy.app.background or not preview._SHOWN:
         return None
-    sys.path.insert(0, HERE)
     import blender_window
     win, area, region = blender_window.view3d()
     times = []

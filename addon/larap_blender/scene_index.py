@@ -43,12 +43,13 @@ import bpy
 MAX_AGE = 1.0  # seconds a cached answer is trusted without another reason to look again
 
 _GENERATION = [0]
-_BOUND = {}    # scene pointer -> (generation, time, [bound mesh objects], the scene)
-_ALIVE = {}    # object pointer -> (generation, time, in some scene, the object)
-_IN_LAYER = {}  # (view layer pointer, object pointer) -> (generation, time, has a base there, the object,
-#                (the view layer's scene, its name))
-_SEEN = {}     # scene pointer -> (the scene, {object pointer: object} of its last list read)
-_NEW = {}      # scene pointer -> pointers of meshes the lists read since the last take_new lacked before
+# Each kept answer: key -> (generation, time, owners, answer); the owners (objects and scenes by
+# identity, names by value) are what the answer was read for, since a freed address is soon reused.
+_BOUND = {}     # scene pointer (0: the file) -> the bound mesh objects
+_ALIVE = {}     # object pointer -> whether it is in some scene
+_IN_LAYER = {}  # (view layer pointer, object pointer) -> whether it has a base in the view layer
+_SEEN = {}      # scene pointer -> (the scene, {object pointer: object} of its last list read)
+_NEW = {}       # scene pointer -> pointers of meshes the lists read since the last take_new lacked before
 
 
 def invalidate(*_args):
@@ -87,17 +88,27 @@ def note_evaluated(depsgraph):
         invalidate()
 
 
-def _fresh(entry):
-    return entry is not None and entry[0] == _GENERATION[0] and time.monotonic() - entry[1] <= MAX_AGE
+def _kept(store, key, owners, read):
+    """The answer kept in ``store[key]`` for these ``owners`` while it is fresh (this generation,
+    at most MAX_AGE old), or ``read()``, kept now. (``type``, not ``isinstance``: the latter
+    reads ``__class__``, which raises ReferenceError on a removed object.)"""
+    entry = store.get(key)
+    if (entry is not None and entry[0] == _GENERATION[0] and time.monotonic() - entry[1] <= MAX_AGE
+            and all(a is b or (type(a) is str and a == b) for a, b in zip(entry[2], owners))):
+        return entry[3]
+    answer = read()
+    store[key] = (_GENERATION[0], time.monotonic(), owners, answer)
+    return answer
 
 
 def bound_meshes(scene):
     """The bound mesh objects of ``scene`` (None: of the whole file), in the order Blender lists
     them. A reader must catch ReferenceError (an object removed since the list was made)."""
     key = scene.as_pointer() if scene is not None else 0
-    entry = _BOUND.get(key)
-    if _fresh(entry) and entry[3] is scene:  # (a removed scene's address is soon reused)
-        return entry[2]
+    return _kept(_BOUND, key, (scene,), lambda: _read_bound(scene, key))
+
+
+def _read_bound(scene, key):
     found = []
     for obj in (scene.objects if scene is not None else bpy.data.objects):
         try:
@@ -105,15 +116,13 @@ def bound_meshes(scene):
                 found.append(obj)
         except ReferenceError:
             continue
-    _BOUND[key] = (_GENERATION[0], time.monotonic(), found, scene)
-    if scene is None:
-        return found
-    owner, seen = _SEEN.get(key, (None, {}))
-    if owner is not scene:
-        seen = {}
-    now = {obj.as_pointer(): obj for obj in found}
-    _NEW.setdefault(key, set()).update(p for p, obj in now.items() if seen.get(p) is not obj)
-    _SEEN[key] = (scene, now)
+    if scene is not None:  # what this list has that the scene's last one lacked
+        owner, seen = _SEEN.get(key, (None, {}))
+        if owner is not scene:
+            seen = {}
+        now = {obj.as_pointer(): obj for obj in found}
+        _NEW.setdefault(key, set()).update(p for p, obj in now.items() if seen.get(p) is not obj)
+        _SEEN[key] = (scene, now)
     return found
 
 
@@ -129,18 +138,12 @@ def target_alive(target):
     if target is None:
         return False
     try:
-        key = target.as_pointer()
-        entry = _ALIVE.get(key)
-        if _fresh(entry) and entry[3] is target:  # (a freed object's address is soon reused)
-            return entry[2]
         # Object.users_scene lists every object of every scene (Python in Blender 3.4: 2-4 ms at
         # 20,000 objects); users_collection, which could answer too, walks every collection's
         # objects in Python and costs more in files of many collections.
-        alive = len(target.users_scene) > 0
+        return _kept(_ALIVE, target.as_pointer(), (target,), lambda: len(target.users_scene) > 0)
     except ReferenceError:
         return False
-    _ALIVE[key] = (_GENERATION[0], time.monotonic(), alive, target)
-    return alive
 
 
 def in_view_layer(obj, view_layer):
@@ -148,17 +151,14 @@ def in_view_layer(obj, view_layer):
     excluded)."""
     if view_layer is None:
         return False
-    try:
-        key = (view_layer.as_pointer(), obj.as_pointer())
-        # A view layer has no lasting Python object to compare: its scene and name stand for it.
-        owner = (view_layer.id_data, view_layer.name)
-        entry = _IN_LAYER.get(key)
-        if _fresh(entry) and entry[3] is obj and entry[4][0] is owner[0] and entry[4][1] == owner[1]:
-            return entry[2]
+
+    def read():
         found = view_layer.objects.get(obj.name)
         # (a linked object of the same name may be the one found by name)
-        inside = found == obj or (found is not None and obj in view_layer.objects[:])
+        return found == obj or (found is not None and obj in view_layer.objects[:])
+    try:
+        # A view layer has no lasting Python object to compare: its scene and name stand for it.
+        return _kept(_IN_LAYER, (view_layer.as_pointer(), obj.as_pointer()),
+                     (obj, view_layer.id_data, view_layer.name), read)
     except ReferenceError:
         return False
-    _IN_LAYER[key] = (_GENERATION[0], time.monotonic(), inside, obj, owner)
-    return inside

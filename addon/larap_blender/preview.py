@@ -558,14 +558,7 @@ def _visible_here(obj, view_layer, space):
         return False
     if space is not None and getattr(space, "local_view", None) is not None and not obj.local_view_get(space):
         return False
-    colls = set(obj.users_collection)
-    stack = [view_layer.layer_collection]
-    while stack:
-        lc = stack.pop()
-        if lc.collection in colls and lc.is_visible and not lc.exclude:
-            return True
-        stack.extend(lc.children)
-    return False
+    return scene_index.in_visible_collection(obj, view_layer)
 
 
 def draw():

@@ -13,7 +13,9 @@ depsgraph handler took 13 ms for the move of an unrelated Empty and 48-50 ms for
 * :func:`bound_meshes`: the bound mesh objects of a scene, or of the file (all, live or not);
 * :func:`target_alive`: whether an object is in some scene (a deleted target is kept as an orphan
   by the handle's pointer and is in none);
-* :func:`in_view_layer`: whether an object has a base in a view layer.
+* :func:`in_view_layer`: whether an object has a base in a view layer;
+* :func:`in_visible_collection`: whether one of its collections is shown in a view layer (the
+  preview's draw asks it at every redraw).
 
 They are forgotten (:func:`invalidate`) whenever what they depend on may have changed: Blender
 reports a Scene or Collection among the IDs of an update whenever an object is linked or unlinked,
@@ -48,6 +50,7 @@ _GENERATION = [0]
 _BOUND = {}     # scene pointer (0: the file) -> the bound mesh objects
 _ALIVE = {}     # object pointer -> whether it is in some scene
 _IN_LAYER = {}  # (view layer pointer, object pointer) -> whether it has a base in the view layer
+_SHOWN_IN = {}  # (view layer pointer, object pointer) -> whether a collection holding it is shown there
 _SEEN = {}      # scene pointer -> (the scene, {object pointer: object} of its last list read)
 _NEW = {}       # scene pointer -> pointers of meshes the lists read since the last take_new lacked before
 
@@ -59,6 +62,7 @@ def invalidate(*_args):
     _BOUND.clear()
     _ALIVE.clear()
     _IN_LAYER.clear()
+    _SHOWN_IN.clear()
 
 
 def forget_all(*_args):
@@ -159,6 +163,38 @@ def in_view_layer(obj, view_layer):
     try:
         # A view layer has no lasting Python object to compare: its scene and name stand for it.
         return _kept(_IN_LAYER, (view_layer.as_pointer(), obj.as_pointer()),
+                     (obj, view_layer.id_data, view_layer.name), read)
+    except ReferenceError:
+        return False
+
+
+def in_visible_collection(obj, view_layer):
+    """Whether a collection holding ``obj`` is visible in ``view_layer`` and not excluded there
+    (its eye, its Disable in Viewports and its parents' taken into account; the object's own
+    hiding is not asked). Hiding, showing or excluding a collection reports the Scene (checked on
+    Blender 3.4.1), which makes the kept answer stale."""
+    if view_layer is None:
+        return False
+
+    def read():
+        # Walks the view layer's collections asking each by name (in C), instead of
+        # Object.users_collection, which is Python listing every object of every collection:
+        # 1.2 against 0.8 ms with 20,000 objects in one collection, 16-50 against 7-8 ms with one
+        # collection per object (Blender 3.4.1, this machine).
+        name = obj.name
+        stack = [view_layer.layer_collection]
+        while stack:
+            lc = stack.pop()
+            if lc.is_visible and not lc.exclude:
+                objects = lc.collection.objects
+                found = objects.get(name)
+                # (a linked object of the same name may be the one found by name)
+                if found is not None and (found == obj or obj in objects[:]):
+                    return True
+            stack.extend(lc.children)
+        return False
+    try:
+        return _kept(_SHOWN_IN, (view_layer.as_pointer(), obj.as_pointer()),
                      (obj, view_layer.id_data, view_layer.name), read)
     except ReferenceError:
         return False

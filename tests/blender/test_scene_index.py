@@ -73,6 +73,47 @@ def test_the_preview_sees_a_collection_excluded_at_once(core, gpu_preview):
     assert not gpu_preview.blocker(obj)
 
 
+def test_the_preview_draw_sees_a_collection_hidden_at_once(core, gpu_preview):
+    """The draw's test (kept between redraws) follows a collection's eye, its Disable in
+    Viewports and a parent's eye at the next update, and an object in two collections stays
+    drawn while one of them is shown."""
+    from larap_blender import scene_index
+    obj, rest, left, right, targets = bar_with_handles(core)
+    outer = bpy.data.collections.new("Outer")
+    inner = bpy.data.collections.new("Inner")
+    other = bpy.data.collections.new("Other")
+    bpy.context.scene.collection.children.link(outer)
+    bpy.context.scene.collection.children.link(other)
+    outer.children.link(inner)
+    inner.objects.link(obj)
+    bpy.context.scene.collection.objects.unlink(obj)
+    layer = bpy.context.view_layer
+    layer.update()
+
+    def drawn():
+        layer.update()
+        return gpu_preview._visible_here(obj, layer, None)
+    assert drawn() and drawn()  # the second answer is the kept one
+    lc_outer = layer.layer_collection.children["Outer"]
+    lc_inner = lc_outer.children["Inner"]
+    for hide, show in ((lambda: setattr(lc_inner, "hide_viewport", True),
+                        lambda: setattr(lc_inner, "hide_viewport", False)),
+                       (lambda: setattr(lc_outer, "hide_viewport", True),
+                        lambda: setattr(lc_outer, "hide_viewport", False)),
+                       (lambda: setattr(inner, "hide_viewport", True),
+                        lambda: setattr(inner, "hide_viewport", False))):
+        hide()
+        assert not drawn()
+        show()
+        assert drawn()
+    other.objects.link(obj)  # in two collections: one hidden, the other still shows it
+    lc_inner.hide_viewport = True
+    assert drawn()
+    layer.layer_collection.children["Other"].hide_viewport = True
+    assert not drawn()
+    assert not scene_index.in_visible_collection(obj, None)
+
+
 def test_a_change_the_index_is_not_told_of_shows_at_the_first_update_after_max_age(core, monkeypatch):
     """Bound set behind the add-on's back (the ID property written directly: no update callback,
     no depsgraph report) while the mesh's target moves: the first update after the kept list is

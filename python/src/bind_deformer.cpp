@@ -80,23 +80,48 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   return std::make_unique<PyDeformer>(std::move(mesh), opt);
 }
 
-// The targets of a pose: (m, 3) row targets, or with `transforms` (G, 4, 4) group maps.
-void require_targets(const PyDeformer& self, const F64& targets, bool transforms) {
+// The targets of a pose: (m, 3) row targets, or with `transforms` (G, 4, 4) group maps. Their
+// shape is read with the GIL held and checked under the instance's lock, in the same locked call
+// that reads them: another thread's set_handles or set_handle_groups may change the handle count
+// in between (a check made before locking let a solve read past the end of its targets).
+struct TargetShape {
+  py::ssize_t ndim;
+  py::ssize_t shape[3];
+  bool transforms;
+};
+
+TargetShape shape_of(const F64& targets, bool transforms) {
   const auto info = targets.request();
-  if (!transforms) {
-    require_rows3(info, "targets", static_cast<int64_t>(self.engine.handles().size()));
+  TargetShape s{info.ndim, {0, 0, 0}, transforms};
+  for (py::ssize_t k = 0; k < info.ndim && k < 3; ++k) s.shape[k] = info.shape[k];
+  return s;
+}
+
+std::string shape_text(const TargetShape& s) {
+  std::string t = "(";
+  for (py::ssize_t k = 0; k < s.ndim && k < 3; ++k) t += (k ? ", " : "") + std::to_string(s.shape[k]);
+  return t + (s.ndim == 1 ? ",)" : s.ndim > 3 ? ", ...)" : ")");
+}
+
+void check_targets(const larap::Deformer& d, const TargetShape& s) {
+  if (!s.transforms) {
+    const int64_t m = static_cast<int64_t>(d.handles().size());
+    if (s.ndim != 2 || s.shape[1] != 3 || s.shape[0] != m)
+      throw larap::InvalidInput("targets should have shape (" + std::to_string(m) + ", 3), shape is " +
+                                shape_text(s) + " (the handles changed?)");
     return;
   }
-  const int64_t G = self.engine.num_groups();
-  if (info.ndim != 3 || info.shape[0] != G || info.shape[1] != 4 || info.shape[2] != 4)
-    throw larap::InvalidInput("transforms must have shape (" + std::to_string(G) + ", 4, 4)");
+  const int64_t G = d.num_groups();
+  if (s.ndim != 3 || s.shape[0] != G || s.shape[1] != 4 || s.shape[2] != 4)
+    throw larap::InvalidInput("transforms should have shape (" + std::to_string(G) + ", 4, 4), shape is " +
+                              shape_text(s) + " (the handle groups changed?)");
 }
 
 py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, double tolerance,
                 bool transforms) {
   const larap::Deformer& d = self.engine;
-  const int64_t n = d.mesh().num_vertices();
-  require_targets(self, targets, transforms);
+  const int64_t n = d.mesh().num_vertices();  // the mesh never changes
+  const TargetShape shape = shape_of(targets, transforms);
   py::array result;
   if (out.is_none()) {
     result = py::array_t<double>({n, int64_t(3)});
@@ -112,11 +137,13 @@ py::array solve(PyDeformer& self, F64 targets, int iterations, py::object out, d
   if (py::isinstance<py::array_t<float>>(result) && result.dtype().is(py::dtype::of<float>())) {
     float* o = static_cast<float*>(result.mutable_data());
     self.locked([&](larap::Deformer& e) {
+      check_targets(e, shape);
       transforms ? e.solve_transforms(t, iterations, o, tolerance) : e.solve(t, iterations, o, tolerance);
     });
   } else if (result.dtype().is(py::dtype::of<double>())) {
     double* o = static_cast<double*>(result.mutable_data());
     self.locked([&](larap::Deformer& e) {
+      check_targets(e, shape);
       transforms ? e.solve_transforms(t, iterations, o, tolerance) : e.solve(t, iterations, o, tolerance);
     });
   } else {
@@ -137,10 +164,12 @@ struct DeviceArray {
 DeviceArray solve_on_device(py::object owner, F64 targets, int iterations, double tolerance,
                             bool transforms) {
   auto& self = owner.cast<PyDeformer&>();
-  require_targets(self, targets, transforms);
+  const TargetShape shape = shape_of(targets, transforms);
   const double* t = targets.data();
-  const float* p = self.locked(
-      [&](larap::Deformer& e) { return e.solve_on_device(t, iterations, tolerance, transforms); });
+  const float* p = self.locked([&](larap::Deformer& e) {
+    check_targets(e, shape);
+    return e.solve_on_device(t, iterations, tolerance, transforms);
+  });
   return DeviceArray{reinterpret_cast<uintptr_t>(p), self.engine.mesh().num_vertices(), owner};
 }
 
@@ -203,23 +232,28 @@ void bind_deformer(py::module_& m) {
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0, py::arg("transforms") = false)
       .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance, bool transforms) {
-             require_targets(self, targets, transforms);
+             const TargetShape shape = shape_of(targets, transforms);
              const double* t = targets.data();
              self.locked([&](D& d) {
+               check_targets(d, shape);
                transforms ? d.pose_transforms(t, iterations, tolerance) : d.pose(t, iterations, tolerance);
              });
            }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0,
            py::arg("transforms") = false)
-      .def_property_readonly("num_groups", [](const PyDeformer& self) { return self.engine.num_groups(); })
+      .def_property_readonly("num_groups", [](const PyDeformer& self) {
+        return self.locked([](const D& d) { return d.num_groups(); });
+      })
       .def("reset", [](PyDeformer& self) { self.locked([](D& d) { d.reset(); }); })
       .def_property(
-          "weights", [](const PyDeformer& self) { return std::string(larap::weight_kind_name(self.engine.weights())); },
+          "weights", [](const PyDeformer& self) {
+            return std::string(larap::weight_kind_name(self.locked([](const D& d) { return d.weights(); })));
+          },
           [](PyDeformer& self, const std::string& w) {
             const auto k = larap::parse_weight_kind(w);
             self.locked([&](D& d) { d.set_weights(k); });
           })
       .def_property(
-          "gamma", [](const PyDeformer& self) { return self.engine.gamma(); },
+          "gamma", [](const PyDeformer& self) { return self.locked([](const D& d) { return d.gamma(); }); },
           [](PyDeformer& self, double g) { self.locked([&](D& d) { d.set_gamma(g); }); })
       .def_property_readonly("num_vertices", [](const PyDeformer& self) { return self.engine.mesh().num_vertices(); })
       .def_property_readonly("num_nodes", [](const PyDeformer& self) { return self.engine.lattice().num_nodes(); })
@@ -231,7 +265,8 @@ void bind_deformer(py::module_& m) {
       .def_property_readonly("device", [](const PyDeformer& self) { return self.engine.device(); })
       .def_property_readonly("fallback_reason", [](const PyDeformer& self) { return self.engine.fallback_reason(); })
       .def_property_readonly("handles", [](const PyDeformer& self) {
-        const auto& h = self.engine.handles();
+        // copied under the lock: another thread's set_handles may replace them meanwhile
+        const std::vector<int64_t> h = self.locked([](const D& d) { return d.handles(); });
         return py::array_t<int64_t>(py::ssize_t(h.size()), h.data());
       })
       .def_property_readonly("stats", &stats)
@@ -296,16 +331,14 @@ void bind_deformer(py::module_& m) {
       })
       .def("trilinear_binding", [](const PyDeformer& self) {
         // The trilinear binding as arrays: per vertex its cell and its position in the cell.
-        const larap::Binding* b = nullptr;
+        // One locked call: the weight kind read and the binding taken for it (bindings, once
+        // made, live as long as the Deformer).
         larap::Binding made;
-        if (self.engine.weights() == larap::WeightKind::Trilinear) {
-          b = self.locked([](const D& e) { return &e.binding(); });
-        } else {
-          made = self.locked([](const D& e) {
-            return larap::bind_vertices(e.lattice(), e.mesh().vertices, larap::WeightKind::Trilinear);
-          });
-          b = &made;
-        }
+        const larap::Binding* b = self.locked([&](const D& e) -> const larap::Binding* {
+          if (e.weights() == larap::WeightKind::Trilinear) return &e.binding();
+          made = larap::bind_vertices(e.lattice(), e.mesh().vertices, larap::WeightKind::Trilinear);
+          return &made;
+        });
         const py::ssize_t n = py::ssize_t(b->base.size());
         py::array_t<int32_t> cells(n);
         py::array_t<float> frac({n, py::ssize_t(3)});

@@ -1,5 +1,7 @@
 # Run: PYTHONPATH=python /usr/bin/python3 -m pytest tests/python/test_deformer.py
 """Properties of the CPU engine: rest pose, rigid motions, energy, volume, separate parts."""
+import time
+
 import numpy as np
 import pytest
 from conftest import rotation, tol
@@ -284,6 +286,66 @@ def test_one_deformer_from_several_threads(tube):
         t.join()
     assert not errors
     assert all(np.isfinite(r).all() and r.shape == ref.shape for r in results)
+
+
+def _guarded(count):
+    """A float64 array of ``count`` values ending at an unreadable page: reading past its end
+    faults (a segfault kills the test run: the failure is loud)."""
+    import ctypes
+    import mmap
+    buf = mmap.mmap(-1, 2 * mmap.PAGESIZE, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+    addr = ctypes.addressof(ctypes.c_char.from_buffer(buf))
+    if ctypes.CDLL(None).mprotect(ctypes.c_void_p(addr + mmap.PAGESIZE), mmap.PAGESIZE, 0) != 0:
+        pytest.skip("mprotect unavailable")
+    page = np.frombuffer(buf, dtype=np.float64, count=mmap.PAGESIZE // 8)
+    return buf, page[-count:]
+
+
+@pytest.mark.parametrize("transforms", [False, True])
+def test_a_solve_racing_a_handle_change_reads_only_its_own_targets(transforms):
+    """Another thread changes the handles (their count) while this one solves: each solve either
+    poses with targets of the right shape or raises ValueError naming the shape; it never reads
+    past the end of its targets (the shape was checked before the instance's lock)."""
+    import threading
+    V, F = larap.shapes.sphere(rings=20, segments=40)
+    d = larap.Deformer(V, F, cells=300)
+    if transforms:
+        buf, flat = _guarded(16)
+        t = flat.reshape(1, 4, 4)
+        t[:] = np.eye(4)
+        small, large = [np.arange(10)], [np.array([i]) for i in range(600)]
+        change = d.set_handle_groups
+    else:
+        buf, flat = _guarded(3)
+        t = flat.reshape(1, 3)
+        t[:] = V[0]
+        small, large = np.array([0]), np.arange(64)
+        change = d.set_handles
+    change(small)
+    stop = threading.Event()
+
+    def flip():
+        while not stop.is_set():
+            change(large)
+            change(small)
+    other = threading.Thread(target=flip)
+    other.start()
+    posed = refused = 0
+    end = time.monotonic() + 2.0  # a race: the longer, the likelier it shows (~1 in 20,000 solves before the fix)
+    try:
+        while time.monotonic() < end:
+            try:
+                X = d.solve(transforms=t, iterations=1) if transforms else d.solve(t, iterations=1)
+                assert np.isfinite(X).all()
+                posed += 1
+            except ValueError as exc:
+                assert "should have shape" in str(exc)
+                refused += 1
+    finally:
+        stop.set()
+        other.join()
+    assert refused > 0
+    assert len(d.handles) == (10 if transforms else 1)
 
 
 @pytest.mark.parametrize("weights", ["trilinear", "bspline"])

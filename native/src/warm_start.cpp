@@ -2,6 +2,7 @@
 
 #include <larap/solve_stats.h>
 
+#include <Eigen/Geometry>
 #include <Eigen/SVD>
 
 #include "backend.h"
@@ -17,10 +18,18 @@ double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& bef
   const Eigen::Matrix3d cov_pp = m.pp - m.w * pc * pc.transpose();  // spread of the handles
   const Eigen::Matrix3d cross = m.pt.transpose() - m.w * tc * pc.transpose();  // sum (t - tc)(p - pc)^T
   const double spread_t = m.tt - m.w * tc.squaredNorm();
-  Eigen::JacobiSVD<Eigen::Matrix3d> spread(cov_pp);
+  Eigen::JacobiSVD<Eigen::Matrix3d> spread(cov_pp, Eigen::ComputeFullU);
   const Eigen::Vector3d s = spread.singularValues();
-  // Collinear or single points: the rotation is not determined; translate only.
-  if (s[1] > 1e-10 * s[0] && s[0] > 0.0) motion.R = best_rotation(cross);
+  if (s[1] > 1e-10 * s[0] && s[0] > 0.0) {
+    motion.R = best_rotation(cross);
+  } else if (s[0] > 0.0) {
+    // Collinear handles: the spin about their line is not determined; turn the line onto the
+    // targets' by the least rotation (no spin). (A point cloud's components often hold two
+    // points: translated only, each took many iterations to turn.)
+    const Eigen::Vector3d dp = spread.matrixU().col(0);
+    const Eigen::Vector3d dt = cross * dp;  // sum (t - tc) ((p - pc) . dp): the targets' line, scaled
+    if (dt.norm() > 0.0) motion.R = Eigen::Quaterniond::FromTwoVectors(dp, dt).toRotationMatrix();
+  }  // a single point: translate only
   motion.t = tc - motion.R * pc;
   motion.active = true;
   // sum |R (p - pc) - (t - tc)|^2 = spread_p + spread_t - 2 tr(R^T cross)

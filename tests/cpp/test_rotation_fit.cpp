@@ -175,17 +175,34 @@ TEST(RotationFit, RigidFitFromMomentsRecoversAMotion) {
   EXPECT_LT((motion.t - t).cwiseAbs().maxCoeff(), 1e-10);
 }
 
-TEST(RotationFit, RigidFitFromMomentsOfCollinearPointsTranslatesOnly) {
+TEST(RotationFit, RigidFitFromMomentsOfCollinearPointsTurnsTheLineWithoutSpin) {
+  // A line of points onto a turned line: the spin about the line is not determined; the fit
+  // takes the least rotation (about the axis normal to both lines), which lands every point.
   larap::RowMatrixX3d from(5, 3), to(5, 3);
   for (int i = 0; i < 5; ++i) {
     from.row(i) << i, 0, 0;
-    to.row(i) << 1, i, 2;  // a turn of the line would fit; its rotation is not determined
+    to.row(i) << 1, i, 2;
   }
   larap::ComponentMotion motion;
   double before = 0.0;
-  larap::fit_rigid(moments_of(from, to, std::vector<double>(5, 1.0)), motion, before);
+  const double after = larap::fit_rigid(moments_of(from, to, std::vector<double>(5, 1.0)), motion, before);
+  EXPECT_GT(before, 1.0);
+  EXPECT_LT(after, 1e-20 * before);
+  EXPECT_LT((motion.R * Eigen::Vector3d::UnitZ() - Eigen::Vector3d::UnitZ()).norm(), 1e-12);  // no spin
+  EXPECT_LT(std::abs(motion.R.determinant() - 1.0), 1e-12);
+  for (int i = 0; i < 5; ++i)
+    EXPECT_LT((motion.R * from.row(i).transpose() + motion.t - to.row(i).transpose()).norm(), 1e-12);
+}
+
+TEST(RotationFit, RigidFitFromMomentsOfOnePointTranslatesOnly) {
+  larap::RowMatrixX3d from(1, 3), to(1, 3);
+  from.row(0) << 1, 2, 3;
+  to.row(0) << -1, 0, 4;
+  larap::ComponentMotion motion;
+  double before = 0.0;
+  larap::fit_rigid(moments_of(from, to, std::vector<double>(1, 2.0)), motion, before);
   EXPECT_TRUE(motion.R.isIdentity(0.0));
-  EXPECT_LT((motion.t - Eigen::Vector3d(1 - 2, 2, 2)).cwiseAbs().maxCoeff(), 1e-12);  // mean offset
+  EXPECT_LT((motion.t - Eigen::Vector3d(-2, -2, 1)).cwiseAbs().maxCoeff(), 1e-12);
 }
 
 }  // namespace

@@ -143,7 +143,7 @@ class LARAP_PG_settings(bpy.types.PropertyGroup):
     weights_final: EnumProperty(name="Final", items=WEIGHT_ITEMS, default="bspline",
                                 description="How the mesh follows the lattice for the result: Solve, a confirmed "
                                 "drag, Bake and Apply (Smooth has no creases)")
-    gamma: FloatProperty(name="Stiffness", default=GAMMA, min=1e-6, soft_max=10.0, update=_redraw,
+    gamma: FloatProperty(name="Stiffness", default=GAMMA, min=1e-6, max=1e8, soft_max=10.0, update=_redraw,
                          description="How much the mesh resists bending and stretching against the pull of the "
                          "handles. Higher: stiffer, handles lag behind their targets; lower: handles are "
                          "followed closely and the rest bends more. Does not depend on the mesh's size")

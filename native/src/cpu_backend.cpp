@@ -61,6 +61,23 @@ struct CsrEdges {
   }
 };
 
+// Why a factorisation failed, in the user's terms: the weights that set the system's scale.
+std::string not_factorised(const HandleSystem& hs) {
+  double lo = 0.0, hi = 0.0;
+  bool any = false;
+  for (double a : hs.alpha)
+    if (a > 0.0) {
+      lo = any ? std::min(lo, a) : a;
+      hi = any ? std::max(hi, a) : a;
+      any = true;
+    }
+  return "the lattice system could not be factorised (not positive definite): the stiffness (gamma, " +
+         number_text(hs.gamma_eff) + " as solved) and the handles' pull (" +
+         (any ? "per vertex from " + number_text(lo) + " to " + number_text(hi) : std::string("none")) +
+         ") are too far apart in size for double precision; use handle weights nearer each other and gamma nearer "
+         "its default";
+}
+
 class CpuBackend final : public Backend {
  public:
   CpuBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
@@ -82,9 +99,11 @@ class CpuBackend final : public Backend {
     A += M_ + G_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();
+#ifdef LARAP_WITH_CHOLMOD
+    llt_->cholmod().print = 0;  // the failure is our exception, not a CHOLMOD warning on stdout
+#endif
     llt_->compute(A);
-    if (llt_->info() != Eigen::Success)
-      throw DeviceError("the lattice system could not be factorised (not positive definite)");
+    if (llt_->info() != Eigen::Success) throw DeviceError(not_factorised(hs));
     rhs_.resize(n, 3);
     H_.setZero(n, 3);
     K_.assign(size_t(hs.num_components), 0.0);

@@ -48,8 +48,9 @@ std::unique_ptr<Backend> make_backend(const std::string& device, const Lattice& 
 }
 
 void check_gamma(double gamma) {
-  if (!(gamma > 0.0) || !std::isfinite(gamma))
-    throw InvalidInput("gamma must be a positive finite number, got " + number_text(gamma));
+  if (!(gamma >= kMinGamma && gamma <= kMaxGamma))
+    throw InvalidInput("gamma must be between " + number_text(kMinGamma) + " and " + number_text(kMaxGamma) +
+                       " (the default is " + number_text(DeformerOptions{}.gamma) + "), got " + number_text(gamma));
 }
 
 void check_levels(int levels) {

@@ -12,6 +12,7 @@ from ._native import _core
 from .io import faces_to_csr
 
 DEFAULT_GAMMA = _core.DEFAULT_GAMMA  # the engine's default stiffness (native/include/larap/deformer.h)
+GAMMA_RANGE = tuple(_core.GAMMA_RANGE)  # (least, largest) gamma the engine accepts: (1e-08, 1e+08)
 
 
 def available_devices() -> list[str]:
@@ -21,9 +22,7 @@ def available_devices() -> list[str]:
 
 def set_num_threads(n: int) -> None:
     """Limit the CPU worker threads of every Deformer in this process (0 = all cores)."""
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral):
-        raise TypeError(f"the number of threads must be an integer, got {n!r}")
-    _core.set_num_threads(int(n))
+    _core.set_num_threads(_integer("the number of threads", n))
 
 
 def num_threads() -> int:
@@ -50,11 +49,11 @@ def _points(name: str, array, rows: int | None = None) -> np.ndarray:
 
 
 def _positive_int(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
+    """A positive integer that fits the engine's 64-bit integers."""
+    value = _integer(name, value, bits=64)
     if value <= 0:
         raise ValueError(f"{name} must be positive, got {value}")
-    return int(value)
+    return value
 
 
 def _real(name: str, value) -> float:
@@ -77,10 +76,15 @@ def _boolean(name: str, value) -> bool:
     return bool(value)
 
 
-def _integer(name: str, value) -> int:
+def _integer(name: str, value, bits: int = 32) -> int:
+    """An integer that fits the engine's ``bits``-bit signed integers (the engine checks the
+    ranges that matter; this keeps a huge Python int from reaching the binding)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an integer, got {value!r}")
-    return int(value)
+    value = int(value)
+    if not -(1 << (bits - 1)) <= value < (1 << (bits - 1)):
+        raise ValueError(f"{name} is out of range, got {value}")
+    return value
 
 
 def _polygons(faces, face_offsets, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +122,9 @@ class Deformer:
     weights: "trilinear" (8 nodes, fast, for dragging) or "bspline" (27 nodes, C1, final quality).
     gamma: rigidity, scale-free: the same value behaves the same at any model size, lattice
         resolution and handle count (docs/method.md). Larger is stiffer; handles are soft, and
-        pull harder the smaller gamma is (default DEFAULT_GAMMA = 0.03; 0.1 before 2026-11-22).
+        pull harder the smaller gamma is (default DEFAULT_GAMMA = 0.03; 0.1 before 2026-11-22);
+        within GAMMA_RANGE (1e-8 to 1e8), beyond which double precision no longer gives the rest
+        pose back.
     device: "cpu", "cuda" or "auto" (CUDA when a usable GPU exists, else the CPU; see .device).
     levels: lattice levels solved coarse to fine, each joining 2x2x2 cells of the one below (the
         paper's hierarchy; coarser levels run on the CPU). 1 = the fine lattice alone. More levels

@@ -384,4 +384,5 @@ void bind_deformer(py::module_& m) {
   m.attr("MAX_LEVELS") = larap::kMaxLevels;
   m.attr("DEFAULT_GAMMA") = larap::DeformerOptions{}.gamma;  // the one place the default lives
   m.attr("MAX_ITERATIONS") = larap::kMaxIterations;
+  m.attr("GAMMA_RANGE") = py::make_tuple(larap::kMinGamma, larap::kMaxGamma);
 }

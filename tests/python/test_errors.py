@@ -49,6 +49,11 @@ CONSTRUCTION = [
     ("cells and cell_size", dict(cell_size=0.1), ValueError, "not both"),
     ("gamma zero", dict(gamma=0.0), ValueError, "gamma"),
     ("gamma NaN", dict(gamma=float("nan")), ValueError, "gamma"),
+    ("gamma too large", dict(gamma=1e9), ValueError, "gamma must be between 1e-08 and 1e+08"),
+    ("gamma too small", dict(gamma=1e-9), ValueError, "gamma must be between 1e-08 and 1e+08"),
+    ("levels beyond a C int", dict(levels=2**31), ValueError, "levels is out of range"),
+    ("split_resolution beyond a C int", dict(split_resolution=2**40), ValueError, "split_resolution is out of range"),
+    ("cells beyond int64", dict(cells=2**63), ValueError, "cells is out of range"),
     ("unknown weights", dict(weights="cubic"), ValueError, "weights"),
     ("unknown device", dict(device="tpu"), ValueError, "device"),
     ("memory limit", dict(cells=None, cell_size=0.01, max_bytes=1000), MemoryError, "MiB (limit 1000 B)"),
@@ -138,8 +143,32 @@ def test_weights_and_gamma_setters_validate():
         d.weights = "linear"
     with pytest.raises(ValueError):
         d.gamma = -1
+    with pytest.raises(ValueError, match="between"):
+        d.gamma = 1e12
     d.gamma = 0.5
     assert d.gamma == 0.5
+
+
+@pytest.mark.parametrize("gamma", [1e-8, 1e8])
+def test_the_rest_pose_comes_back_at_either_end_of_the_gamma_range(gamma):
+    """Handles at rest give the rest pose at the least and the largest gamma accepted (beyond
+    them, double precision did not: 1e-4 of the size at 1e12, 1.6e-5 at 1e-12)."""
+    assert larap.GAMMA_RANGE == (1e-8, 1e8)
+    V, F = larap.shapes.sphere(rings=20, segments=40)
+    for weights in ("trilinear", "bspline"):
+        d = larap.Deformer(V, F, cells=500, gamma=gamma, weights=weights)
+        d.set_handle_groups([np.arange(0, len(V), 20), np.arange(5, len(V), 20)])
+        X = d.solve(transforms=np.stack([np.eye(4)] * 2), iterations=10)
+        assert np.abs(X - V).max() < 1e-6 * np.ptp(V, axis=0).max()
+
+
+def test_a_system_that_cannot_be_factorised_says_why(capfd):
+    """Handle weights 1e300 apart: the factorisation fails with a message naming gamma and the
+    handles' pull, and CHOLMOD prints nothing of its own."""
+    d = bound()
+    with pytest.raises(RuntimeError, match="gamma.*handles' pull.*too far apart"):
+        d.set_handle_groups([np.arange(5), np.arange(60, 65)], weights=[1e300, 1.0])
+    assert "CHOLMOD" not in capfd.readouterr().out
 
 
 def test_solve_on_device_needs_cuda():

@@ -32,12 +32,17 @@ namespace larap {
 // ------------------------------------------------------------------------------------ limits
 constexpr int kMaxLevels = 8;             // DeformerOptions::levels is in [1, kMaxLevels]
 constexpr int kMaxIterations = 100000;    // solve(..., iterations) is in [0, kMaxIterations]
+// gamma is in [kMinGamma, kMaxGamma]: beyond, the system is too ill-conditioned in double to give
+// back the rest pose (measured on a sphere: 1e-12 leaves 1.6e-5 of its radius, 1e12 1e-4;
+// within, at most 2e-7), or not positive definite at all.
+constexpr double kMinGamma = 1e-8;
+constexpr double kMaxGamma = 1e8;
 
 // ------------------------------------------------------------------------------------ options
 struct DeformerOptions {
   LatticeOptions lattice;                       // resolution and memory limit of the lattice
   WeightKind weights = WeightKind::Trilinear;   // vertex binding used by solve()
-  double gamma = 0.03;                          // rigidity, scale-free (> 0; docs/method.md)
+  double gamma = 0.03;                          // rigidity, scale-free ([kMinGamma, kMaxGamma]; docs/method.md)
   std::string device = "cpu";                   // "cpu" | "cuda" | "auto"
   int levels = 1;                               // lattice levels solved coarse to fine; 1 = fine only
 };

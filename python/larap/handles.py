@@ -112,48 +112,56 @@ def parse_handles(data, V: np.ndarray) -> list[HandleGroup]:
         raise HandleError("the handle file must be an object with a list 'handles'")
     groups, owner = [], {}
     for k, group in enumerate(data["handles"]):
-        if not isinstance(group, dict):
-            raise HandleError(f"handles[{k}] must be an object")
-        name = str(group.get("name", f"group{k}"))
-        where = f"handle group '{name}'"
-        ids = _select(group, where, V)
-        if "targets" in group and "transform" in group:
-            raise HandleError(f"{where}: give 'targets' or 'transform', not both")
-        weight = group.get("weight", 1.0)
-        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not math.isfinite(weight) \
-                or weight < 0:
-            raise HandleError(f"{where}: weight must be a non-negative number, got {weight!r}")
-        M = None
-        if "targets" in group:
-            if "vertices" not in group:
-                raise HandleError(f"{where}: 'targets' needs an explicit 'vertices' list")
-            T = np.asarray(group["targets"], dtype=float) if isinstance(group["targets"], list) else None
-            if T is None or T.shape != (ids.size, 3) or not np.isfinite(T).all():
-                raise HandleError(f"{where}: targets must be {ids.size} finite [x, y, z] positions")
-        else:
-            tf = group.get("transform", {})
-            if not isinstance(tf, dict):
-                raise HandleError(f"{where}: transform must be an object")
-            unknown = set(tf) - {"translate", "rotate", "scale", "pivot"}
-            if unknown:
-                raise HandleError(f"{where}: unknown transform keys {sorted(unknown)}")
-            P = V[ids]
-            pivot = P.mean(axis=0) if tf.get("pivot", "centroid") == "centroid" else _vec3(tf["pivot"], f"{where}: pivot")
-            R = rotation_matrix(tf["rotate"]) if "rotate" in tf else np.eye(3)
-            s = tf.get("scale", 1.0)
-            if not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
-                raise HandleError(f"{where}: scale must be a positive number, got {s!r}")
-            t = _vec3(tf["translate"], f"{where}: translate") if "translate" in tf else np.zeros(3)
-            M = np.eye(4)
-            M[:3, :3] = s * R
-            M[:3, 3] = pivot + t - s * R @ pivot
-            T = P @ M[:3, :3].T + M[:3, 3]
-        for i in ids.tolist():
-            if i in owner:
-                raise HandleError(f"vertex {i} is in both '{owner[i]}' and '{name}'")
-            owner[i] = name
-        groups.append(HandleGroup(name, ids, T, M, float(weight)))
+        try:
+            _parse_group(k, group, V, groups, owner)
+        except OverflowError as exc:  # a JSON integer beyond a float or int64
+            raise HandleError(f"handles[{k}]: a number is too large ({exc})") from None
     return groups
+
+
+def _parse_group(k, group, V, groups, owner):
+    """handles[k] of the file, appended to ``groups``; ``owner``: vertex -> its group's name."""
+    if not isinstance(group, dict):
+        raise HandleError(f"handles[{k}] must be an object")
+    name = str(group.get("name", f"group{k}"))
+    where = f"handle group '{name}'"
+    ids = _select(group, where, V)
+    if "targets" in group and "transform" in group:
+        raise HandleError(f"{where}: give 'targets' or 'transform', not both")
+    weight = group.get("weight", 1.0)
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not math.isfinite(weight) \
+            or weight < 0:
+        raise HandleError(f"{where}: weight must be a non-negative number, got {weight!r}")
+    M = None
+    if "targets" in group:
+        if "vertices" not in group:
+            raise HandleError(f"{where}: 'targets' needs an explicit 'vertices' list")
+        T = np.asarray(group["targets"], dtype=float) if isinstance(group["targets"], list) else None
+        if T is None or T.shape != (ids.size, 3) or not np.isfinite(T).all():
+            raise HandleError(f"{where}: targets must be {ids.size} finite [x, y, z] positions")
+    else:
+        tf = group.get("transform", {})
+        if not isinstance(tf, dict):
+            raise HandleError(f"{where}: transform must be an object")
+        unknown = set(tf) - {"translate", "rotate", "scale", "pivot"}
+        if unknown:
+            raise HandleError(f"{where}: unknown transform keys {sorted(unknown)}")
+        P = V[ids]
+        pivot = P.mean(axis=0) if tf.get("pivot", "centroid") == "centroid" else _vec3(tf["pivot"], f"{where}: pivot")
+        R = rotation_matrix(tf["rotate"]) if "rotate" in tf else np.eye(3)
+        s = tf.get("scale", 1.0)
+        if not isinstance(s, (int, float)) or not math.isfinite(s) or s <= 0:
+            raise HandleError(f"{where}: scale must be a positive number, got {s!r}")
+        t = _vec3(tf["translate"], f"{where}: translate") if "translate" in tf else np.zeros(3)
+        M = np.eye(4)
+        M[:3, :3] = s * R
+        M[:3, 3] = pivot + t - s * R @ pivot
+        T = P @ M[:3, :3].T + M[:3, 3]
+    for i in ids.tolist():
+        if i in owner:
+            raise HandleError(f"vertex {i} is in both '{owner[i]}' and '{name}'")
+        owner[i] = name
+    groups.append(HandleGroup(name, ids, T, M, float(weight)))
 
 
 def load_handles(path, V: np.ndarray) -> list[HandleGroup]:
@@ -164,6 +172,8 @@ def load_handles(path, V: np.ndarray) -> list[HandleGroup]:
         raise
     except json.JSONDecodeError as exc:
         raise HandleError(f"{path}: not valid JSON ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise HandleError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
     return parse_handles(data, V)
 
 

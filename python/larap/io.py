@@ -17,6 +17,15 @@ from . import _core
 __all__ = ["load_mesh", "save_mesh", "faces_to_csr"]
 
 
+def _path(name, path):
+    """``path`` (str or bytes) for the engine, which reads it as a C string: a NUL would cut it
+    short (and "x\0.obj" would write "x"), so it is refused as Python's open() refuses it."""
+    text = os.fspath(path)
+    if ("\0" if isinstance(text, str) else b"\0") in text:
+        raise ValueError(f"{name} has an embedded null byte: {text!r}")
+    return text
+
+
 def load_mesh(path):
     """Read an OBJ, PLY (ascii or binary) or OFF file; the format comes from the extension.
 
@@ -29,7 +38,7 @@ def load_mesh(path):
     contents (truncated, lying counts, indices out of range, non-finite coordinates), OSError for
     other read failures.
     """
-    vertices, offsets, indices = _core.load_mesh(os.fspath(path))
+    vertices, offsets, indices = _core.load_mesh(_path("path", path))
     return vertices, csr_to_faces(offsets, indices)
 
 
@@ -55,8 +64,8 @@ def save_mesh(path, vertices, faces=None, *, template=None, ascii=False):
         offsets, indices = np.zeros(1, np.int64), np.zeros(0, np.int64)
     else:
         offsets, indices = faces_to_csr(faces, V.shape[0])
-    tpl = "" if template is None else os.fspath(template)
-    _core.save_mesh(os.fspath(path), V, offsets, indices, bool(ascii), tpl)
+    tpl = "" if template is None else _path("template", template)
+    _core.save_mesh(_path("path", path), V, offsets, indices, bool(ascii), tpl)
 
 
 def faces_to_csr(faces, num_vertices=None):

@@ -124,6 +124,8 @@ def test_rotation_forms(tmp_path, mesh_file):
     ({"handles": [{"vertices": [0], "transform": {"rotate": {"axis": [0, 0, 0], "angle": 3}}}]}, "axis"),
     ({"handles": [{"vertices": [0], "transform": {"shear": 1}}]}, "unknown"),
     ({"nothing": []}, "list 'handles'"),
+    ({"handles": [{"vertices": [0], "weight": 10**400}]}, "too large"),
+    ({"handles": [{"vertices": [10**30]}]}, "too large"),
 ])
 def test_bad_handle_files(tmp_path, mesh_file, data, words, capsys):
     path, _ = mesh_file
@@ -142,6 +144,12 @@ def test_bad_files_exit_2(tmp_path, mesh_file, capsys):
     bad.write_text("{not json")
     assert main(["deform", str(path), "--handles", str(bad), "--out", "x.obj"]) == 2
     assert "JSON" in capsys.readouterr().err
+    latin = tmp_path / "latin.json"
+    latin.write_bytes('{"handles": [{"name": "Ärm", "vertices": [0]}]}'.encode("latin-1"))
+    assert main(["deform", str(path), "--handles", str(latin), "--out", "x.obj"]) == 2
+    assert "latin.json: not UTF-8" in capsys.readouterr().err
+    assert main(["deform", str(path), "--handles", str(h), "--out", "x.obj", "--iterations", str(2**31)]) == 2
+    assert "iterations is out of range" in capsys.readouterr().err
     trunc = tmp_path / "trunc.off"
     trunc.write_text("OFF\n100 50 0\n0 0 0\n")
     assert main(["deform", str(trunc), "--handles", str(h), "--out", "x.obj"]) == 2

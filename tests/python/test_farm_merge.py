@@ -35,6 +35,10 @@ def test_plan_and_frames_reject_bad_input():
     for bad in ("", "a-b", "7-3", "1-2-3"):
         with pytest.raises(ValueError):
             parse_frames(bad)
+    with pytest.raises(ValueError, match="beyond Blender's frames"):  # was: a plan of 1e11 chunks
+        parse_frames("1-100000000000")
+    with pytest.raises(ValueError, match="at most 1048574"):
+        plan_chunks(1, 1048575, 1)
     with pytest.raises(ValueError, match="mode"):
         BakeJob("x.blend", ["A"], 1, 10, "out", mode="fast")
     with pytest.raises(ValueError, match="object"):

@@ -53,6 +53,18 @@ def test_mixed_polygons_come_back_as_a_list(tmp_path):
             assert a.dtype == np.int64 and np.array_equal(a, np.asarray(b))
 
 
+def test_a_null_byte_in_a_path_is_refused(tmp_path):
+    """The engine reads paths as C strings: "x\0.obj" would have written "x"."""
+    keep = tmp_path / "important"
+    keep.write_text("the artist's file")
+    for path in (str(keep) + "\0.obj", os.fsencode(str(keep) + "\0.obj")):
+        with pytest.raises(ValueError, match="null byte"):
+            save_mesh(path, np.zeros((3, 3)), [[0, 1, 2]])
+        with pytest.raises(ValueError, match="null byte"):
+            load_mesh(path)
+    assert keep.read_text() == "the artist's file"
+
+
 def test_point_cloud(tmp_path):
     V = np.arange(12.0).reshape(4, 3)
     for name in ("c.obj", "c.ply", "c.off"):

@@ -44,21 +44,28 @@ def parse_frames(text) -> tuple[int, int]:
     last = int(m.group(2)) if m.group(2) is not None else first
     if last < first:
         raise ValueError(f"frame range {text!r} is empty (last frame before the first)")
+    if max(abs(first), abs(last)) > MAX_FRAME:
+        raise ValueError(f"frame range {text!r} goes beyond Blender's frames (-{MAX_FRAME} to {MAX_FRAME})")
     return first, last
 
 
-def _int(name, value, minimum):
+MAX_FRAME = 1048574  # Blender's frames lie in [-MAX_FRAME, MAX_FRAME] (MAXFRAME in DNA_scene_types.h)
+
+
+def _int(name, value, minimum, maximum=None):
     if isinstance(value, bool) or not isinstance(value, int):
         raise TypeError(f"{name} must be an integer, got {value!r}")
     if value < minimum:
         raise ValueError(f"{name} must be at least {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be at most {maximum}, got {value}")
     return value
 
 
 def plan_chunks(frame_start: int, frame_end: int, chunk_size: int, preroll: int = 0) -> list[Chunk]:
     """Consecutive chunks of at most ``chunk_size`` frames covering frame_start..frame_end."""
-    frame_start = _int("frame_start", frame_start, -(2 ** 31))
-    frame_end = _int("frame_end", frame_end, -(2 ** 31))
+    frame_start = _int("frame_start", frame_start, -MAX_FRAME, MAX_FRAME)
+    frame_end = _int("frame_end", frame_end, -MAX_FRAME, MAX_FRAME)
     if frame_end < frame_start:
         raise ValueError(f"frame range {frame_start}-{frame_end} is empty")
     chunk_size = _int("chunk_size", chunk_size, 1)

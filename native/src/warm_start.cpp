@@ -28,7 +28,14 @@ double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& bef
     // points: translated only, each took many iterations to turn.)
     const Eigen::Vector3d dp = spread.matrixU().col(0);
     const Eigen::Vector3d dt = cross * dp;  // sum (t - tc) ((p - pc) . dp): the targets' line, scaled
-    if (dt.norm() > 0.0) motion.R = Eigen::Quaterniond::FromTwoVectors(dp, dt).toRotationMatrix();
+    if (dt.norm() > 0.0) {
+      const Eigen::Vector3d u = dt.normalized(), axis = dp.cross(u);
+      const double sin = axis.norm(), cos = dp.dot(u);
+      // (Eigen's Quaterniond::FromTwoVectors does the same; its antiparallel branch trips GCC 13's
+      // -Wmaybe-uninitialized.) Antiparallel lines: half a turn about any normal of the line.
+      motion.R = Eigen::AngleAxisd(std::atan2(sin, cos), sin > 1e-12 ? Eigen::Vector3d(axis / sin) : dp.unitOrthogonal())
+                     .toRotationMatrix();
+    }
   }  // a single point: translate only
   motion.t = tc - motion.R * pc;
   motion.active = true;

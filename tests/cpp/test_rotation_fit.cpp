@@ -192,6 +192,11 @@ TEST(RotationFit, RigidFitFromMomentsOfCollinearPointsTurnsTheLineWithoutSpin) {
   EXPECT_LT(std::abs(motion.R.determinant() - 1.0), 1e-12);
   for (int i = 0; i < 5; ++i)
     EXPECT_LT((motion.R * from.row(i).transpose() + motion.t - to.row(i).transpose()).norm(), 1e-12);
+  for (int i = 0; i < 5; ++i) to.row(i) << -i, 1, 0;  // the line reversed: half a turn
+  larap::fit_rigid(moments_of(from, to, std::vector<double>(5, 1.0)), motion, before);
+  EXPECT_LT(std::abs(motion.R.determinant() - 1.0), 1e-12);
+  for (int i = 0; i < 5; ++i)
+    EXPECT_LT((motion.R * from.row(i).transpose() + motion.t - to.row(i).transpose()).norm(), 1e-12);
 }
 
 TEST(RotationFit, RigidFitFromMomentsOfOnePointTranslatesOnly) {

@@ -144,7 +144,10 @@ def vertex_group_weights(obj, names):
                 if mix is not None:
                     obj.shape_key_remove(mix)
                 obj.shape_key_remove(tmp)
-            out[name] = (mixed[:, 2] - base[:, 2]).astype(np.float32)
+            w = (mixed[:, 2] - base[:, 2]).astype(np.float32)
+            if _mask_ignored(obj, name, w):
+                w = np.zeros(n, np.float32)
+            out[name] = w
         basis.mute = basis_mute
     finally:
         if not had_keys:
@@ -158,6 +161,17 @@ def vertex_group_weights(obj, names):
             obj.active_shape_key_index = active_index
         obj.show_only_shape_key = show_only
     return out
+
+
+def _mask_ignored(obj, name, w):
+    """Whether the mixer ignored the vertex-group mask: a mesh on which no vertex was ever
+    assigned to a group has no weight layer, and Blender then mixes the key at full weight
+    everywhere (a group the artist created and forgot to Assign read as every vertex). Checked
+    on vertex 0 when the group reads as every vertex at weight 1 (to float32 rounding)."""
+    if len(w) == 0 or not bool(np.all(np.abs(w - 1.0) < 1e-4)):  # (mixed in float32)
+        return False
+    index = obj.vertex_groups[name].index
+    return not any(g.group == index and g.weight > 1.0 - 1e-4 for g in obj.data.vertices[0].groups)
 
 
 def selected_vertices(obj):

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import bar_with_handles, coords, diagonal
+from conftest import activate, bar_with_handles, coords, diagonal, make_bar
 
 
 def test_each_handle_is_one_group_moved_by_its_targets_transform(core, monkeypatch):
@@ -133,3 +133,24 @@ def test_a_weight_painted_after_the_pose_makes_bake_solve_again(core):
     assert np.abs(baked[middle] - stale[middle]).max() > 0.05 * diagonal(rest)
     assert np.array_equal(baked.astype(np.float32), final_pose(core, obj))
     assert solving.key_up_to_date(obj)
+
+
+def test_a_group_nobody_was_assigned_to_is_empty_not_every_vertex(core):
+    """A mesh on which no vertex was ever assigned to a group has no weight layer, and Blender's
+    mixer then ignores a key's vertex-group mask: a group created and not Assigned read as every
+    vertex at weight 1 (the whole mesh became one handle). It reads as empty, and Add Handle says
+    so; once vertices are assigned, it is the handle they make."""
+    from larap_blender import mesh_data
+    obj = make_bar()
+    activate(obj)
+    obj.vertex_groups.new(name="Forgot")
+    w = mesh_data.vertex_group_weights(obj, ["Forgot"])["Forgot"]
+    assert w.shape == (len(obj.data.vertices),) and not w.any()
+    with pytest.raises(RuntimeError, match="has no vertices"):
+        bpy.ops.larap.handle_add(vertex_group="Forgot")
+    obj.vertex_groups["Forgot"].add([0, 1, 2], 1.0, "REPLACE")
+    w = mesh_data.vertex_group_weights(obj, ["Forgot"])["Forgot"]
+    assert np.flatnonzero(w).tolist() == [0, 1, 2] and np.allclose(w[:3], 1.0, atol=1e-6)
+    everyone = obj.vertex_groups.new(name="Everyone")  # a group that really holds every vertex
+    everyone.add(list(range(len(obj.data.vertices))), 1.0, "REPLACE")
+    assert np.allclose(mesh_data.vertex_group_weights(obj, ["Everyone"])["Everyone"], 1.0, atol=1e-6)

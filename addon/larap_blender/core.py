@@ -19,7 +19,7 @@ from mathutils import Matrix, Vector
 from . import preview
 from .bake import (AnimationBake, LarapCancelled, bake_animation, bake_shape_key, is_baked, pose_key_hidden,
                    remove_bake)
-from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, check_object, engine_errors
+from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, bound_sharing, check_object, engine_errors
 from .handlers import live_suspended, live_update, suspend_live
 from .mesh_data import (apply_offsets, ensure_pose_key, key_positions, remove_pose_key, rest_positions,
                         selected_vertices, topology_hash, polygons, vertex_group_weights, write_pose)
@@ -71,7 +71,7 @@ def bind(obj, *, keep_pose=True, progress=None):
     its vertices are now. ``keep_pose=False``: the current transforms become the rest (the mesh
     returns to its rest shape, the targets stay where they are). ``progress``: a Progress.
     A failure leaves the object as it was (mesh, keys, settings, previous binding)."""
-    check_object(obj)
+    check_object(obj, bind=True)
     p = _progress(progress, 3)
     with p, preserve_on_error(obj):
         return _bind(obj, keep_pose, p)
@@ -184,7 +184,8 @@ def unbind(obj):
     modifiers and every other object are kept."""
     check_object(obj)
     preview.stop(obj)
-    remove_pose_key(obj)
+    if not bound_sharing(obj):  # else the key is also the pose of another bound user of this mesh
+        remove_pose_key(obj)
     obj.larap.bound = False
     drop_runtime(obj)
 

@@ -31,7 +31,7 @@ def memory_message(engine_text):
     return "out of memory (%s); use fewer Cells or a larger Cell Size" % what
 
 
-def check_object(obj, *, need_bound=False, allow_edit_mode=False):
+def check_object(obj, *, need_bound=False, allow_edit_mode=False, bind=False):
     if obj is None:
         raise LarapError("No active object")
     try:
@@ -46,7 +46,31 @@ def check_object(obj, *, need_bound=False, allow_edit_mode=False):
         raise LarapError("%r is in Edit Mode; switch to Object Mode first" % obj.name)
     if need_bound and not obj.larap.bound:
         raise LarapError("%r is not bound; use LARAP > Bind first" % obj.name)
+    if need_bound or bind:
+        others = bound_sharing(obj)
+        if others:
+            raise LarapError(
+                "%r shares its mesh data with %s, which LARAP also poses (a linked duplicate, Alt+D): the pose "
+                "key is the mesh's, so each would overwrite the other's pose. Unbind one of them, or give this "
+                "one its own mesh (Object > Relations > Make Single User > Object & Data)"
+                % (obj.name, ", ".join(repr(o.name) for o in others[:3])))
     return obj
+
+
+def bound_sharing(obj):
+    """The other bound mesh objects that use ``obj``'s mesh data (Alt+D duplicates)."""
+    me = obj.data
+    if me.users < 2:
+        return []
+    from . import scene_index
+    found = []
+    for other in scene_index.bound_meshes(None):
+        try:
+            if other != obj and other.data == me:
+                found.append(other)
+        except ReferenceError:
+            continue
+    return found
 
 
 def require_engine():

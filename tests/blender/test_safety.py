@@ -620,3 +620,36 @@ def test_cell_splitting_out_of_memory_names_the_panel_settings(core, monkeypatch
     assert "out of memory" in text and "Parts Apart" in text and "Cell Size" in text, text
     assert "split_resolution" not in text and "split_cells" not in text, text
     assert not obj.larap.bound
+
+
+def test_linked_duplicates_never_overwrite_each_others_pose(core):
+    """Alt+D shares the mesh data, and with it the pose key: two bound users of one mesh would
+    each overwrite the other's pose. Solve on either says so and writes nothing; Unbind of the
+    copy keeps the key (it is the original's pose too), after which the original poses again and
+    the copy shows it (linked data); binding the copy again is refused while the original is bound."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.3
+    bpy.context.view_layer.update()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    posed = coords(obj, "LARAP")
+    activate(obj)
+    assert bpy.ops.object.duplicate(linked=True) == {"FINISHED"}
+    copy = bpy.context.active_object
+    assert copy != obj and copy.data == obj.data and copy.larap.bound
+    for o in (obj, copy):
+        activate(o)
+        with pytest.raises(RuntimeError, match="shares its mesh data with .* Make Single User"):
+            bpy.ops.larap.solve()
+    np.testing.assert_array_equal(coords(obj, "LARAP"), posed)
+    activate(copy)
+    assert bpy.ops.larap.unbind() == {"FINISHED"}
+    assert obj.data.shape_keys.key_blocks.get("LARAP") is not None and obj.larap.bound
+    activate(obj)
+    targets[1].location.z += 0.2
+    bpy.context.view_layer.update()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    assert np.abs(coords(obj, "LARAP") - posed).max() > 0.1
+    activate(copy)
+    with pytest.raises(RuntimeError, match="shares its mesh data"):
+        bpy.ops.larap.bind()
+    assert not copy.larap.bound

@@ -69,8 +69,9 @@ def _live_solve(obj, rt, sig, render):
         solve(obj, weights="final", validate="fast")
         return True
     if not preview.blocker(obj):
-        solve(obj, weights="interactive", validate="fast", lattice_only=True)
-        if not preview.show(obj):  # cannot hide it here: write what the preview would have shown
+        posed = solve(obj, weights="interactive", validate="fast", lattice_only=True)
+        # (no usable handle: the rest pose was written, and there is nothing to draw instead)
+        if posed.handles > 0 and not preview.show(obj):  # cannot hide it: write what it would show
             solve(obj, weights="interactive", validate="fast")
     else:
         solve(obj, weights="interactive", validate="fast")

@@ -193,9 +193,13 @@ def _tag_redraw():
 
 def show(obj):
     """Draw ``obj`` from its runtime's lattice (rt.lattice_nodes) instead of its mesh. Returns
-    False when the object cannot be hidden in the view layer (then write the mesh instead).
+    False when the object cannot be hidden in the view layer, or there is no posed lattice to
+    draw (then write the mesh instead).
     Builds the per-binding data first (:func:`prepare`), here on the live/drag path: the draw
     callback only uploads it and never reads or writes the mesh."""
+    rt = runtime(obj)
+    if rt is None or rt.lattice_nodes is None:  # nothing posed to draw: never hide the mesh for nothing
+        return False
     prepare(obj)
     key = obj.larap.runtime_id
     if key in _SHOWN:

@@ -229,6 +229,9 @@ class PoseSession:
         obj = self.obj
         if weights == "interactive" and not preview.blocker(obj):
             self.last = solve(obj, weights=weights, validate="fast", overrides=overrides, lattice_only=True)
+            if self.last.handles == 0:  # the rest pose was written: nothing to draw instead
+                self.wrote = True
+                return self.last
             if preview.show(obj):
                 return self.last
         self.wrote = True

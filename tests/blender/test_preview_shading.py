@@ -274,3 +274,22 @@ def test_a_change_the_preview_cannot_draw_during_a_drag_is_left_to_the_drag(core
     session.cancel()
     assert np.array_equal(coords(obj, "LARAP"), start)
     assert before is None or np.array_equal(before, start)
+
+
+def test_with_no_usable_handle_a_live_move_never_hides_the_mesh(core, gpu_preview):
+    """Both handles' vertex groups renamed: a live move writes the rest pose (with its warning)
+    and Blender keeps drawing the mesh; the preview, with no posed lattice to draw, used to hide
+    it until the catch-up (the mesh vanished while an Empty was dragged)."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    obj.larap.live = True
+    live_move(targets, 0.1)
+    assert gpu_preview.showing(obj)  # the preview path is the one taken
+    core.preview.stop(obj)
+    for g in obj.vertex_groups:
+        g.name = "renamed_" + g.name
+    for k in range(3):
+        live_move(targets, 0.1)
+        assert not gpu_preview.showing(obj) and not obj.hide_get()
+    np.testing.assert_allclose(coords(obj, "LARAP"), rest, atol=1e-6)
+    assert any("no usable handles" in w for w in core.runtime(obj).warnings)
+    assert not gpu_preview.show(obj)  # nothing posed to draw

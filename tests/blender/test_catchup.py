@@ -467,7 +467,10 @@ def test_preview_leaves_a_mesh_the_artist_hid_hidden(core, gpu_preview):
     catchup.catch_up_all()
     assert obj.hide_get()
     assert_caught_up(core, obj)
-    # Defensive: a direct show() of a hidden mesh is undone to hidden (and never drawn).
+    # Defensive: a direct show() of a hidden mesh is undone to hidden (and never drawn); it
+    # needs a posed lattice to draw.
+    assert not gpu_preview.show(obj) and gpu_preview.HIDDEN_PROP not in obj
+    core.solve(obj, weights="interactive", validate="fast", lattice_only=True)
     assert gpu_preview.show(obj) and obj.get(gpu_preview.HIDDEN_PROP) == 3
     gpu_preview.stop(obj)
     assert obj.hide_get() and gpu_preview.HIDDEN_PROP not in obj

@@ -107,6 +107,10 @@ class LARAP_OT_unbind(_LarapOp, bpy.types.Operator):
     bl_label = "LARAP Unbind"
 
     def run(self, context, obj):
+        if not obj.larap.bound:  # nothing to undo either: no step in the undo history
+            core.check_object(obj, allow_edit_mode=True)
+            self.report({"INFO"}, "%r is not bound" % obj.name)
+            return {"CANCELLED"}
         _leave_edit_mode(self, context, obj)
         core.unbind(obj)
         self.report({"INFO"}, "Unbound %r" % obj.name)

@@ -256,7 +256,11 @@ def gather(obj, rt, overrides=None):
         except LarapError as exc:
             warnings.append("%s; skipped" % exc)
             continue
-        if not np.isfinite(local).all() or singular(local[:3, :3]):
+        if not np.isfinite(local).all():
+            warnings.append("handle %r skipped: its target's transform is not a number (NaN or infinite "
+                            "location, rotation or scale)" % (h.vertex_group or "(no group)"))
+            continue
+        if singular(local[:3, :3]):
             warnings.append("handle %r skipped: its target is scaled to zero (or flat)"
                             % (h.vertex_group or "(no group)"))
             continue
@@ -300,6 +304,8 @@ def _skip_reason(obj, h, groups=None):
     if groups is not None and len(groups.get(h.vertex_group, ())) == 0:
         return "handle %r skipped: vertex group is empty" % label
     if not h.has_rest:
+        if not target_alive(h.target):  # (a rebind cannot record a rest for a deleted target)
+            return "handle %r skipped: it has no target (deleted?); pick one in the handle's settings" % label
         return "handle %r skipped: not bound (rebind)" % label
     return ""
 

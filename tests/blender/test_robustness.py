@@ -90,3 +90,23 @@ def test_existing_modifiers_groups_and_keys_kept(core):
     bpy.ops.larap.solve()
     assert [m.name for m in obj.modifiers] == ["Sub"]
     assert {"Left", "Right", "Other"} <= set(obj.vertex_groups.keys())
+
+
+def test_the_words_for_a_nan_target_a_rebind_without_target_and_an_unbound_unbind(core):
+    """Each warning names its cause: a target with a NaN location is 'not a number' (it read
+    'scaled to zero'); after a rebind, a handle whose target was deleted says it has no target
+    (it read 'not bound (rebind)' on a mesh just rebound); Unbind on a mesh that is not bound says
+    so and leaves no undo step."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.x = float("nan")
+    bpy.context.view_layer.update()
+    activate(obj)
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    assert any("Right" in w and "not a number" in w for w in core.runtime(obj).warnings)
+    targets[1].location.x = 2.0
+    bpy.data.objects.remove(targets[1])
+    assert bpy.ops.larap.bind() == {"FINISHED"}  # rebind, keeping the pose
+    words = [w for w in core.runtime(obj).warnings if "Right" in w]
+    assert words and all("no target" in w and "rebind" not in w for w in words), words
+    assert bpy.ops.larap.unbind() == {"FINISHED"}
+    assert bpy.ops.larap.unbind() == {"CANCELLED"}

@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 import pytest
 
-from conftest import activate, bar_with_handles, coords, diagonal
+from conftest import activate, bar_with_handles, coords, diagonal, make_bar
 
 
 def test_removed_target_is_skipped(core):
@@ -110,3 +110,17 @@ def test_the_words_for_a_nan_target_a_rebind_without_target_and_an_unbound_unbin
     assert words and all("no target" in w and "rebind" not in w for w in words), words
     assert bpy.ops.larap.unbind() == {"FINISHED"}
     assert bpy.ops.larap.unbind() == {"CANCELLED"}
+
+
+def test_bind_from_the_panel_asks_first_for_a_lattice_of_minutes(core):
+    """The estimate Bind's dialog reads: Cells as set, with Cell Size the grid around the box
+    (a 4 x 0.5 x 0.5 bar at 0.01: 401 x 51 x 51 cells), Auto none."""
+    from larap_blender import operators
+    obj = make_bar()
+    assert operators.estimated_cells(obj) == 0
+    obj.larap.resolution_mode, obj.larap.cells = "CELLS", 200000
+    assert operators.estimated_cells(obj) == 200000 > operators.LARGE_LATTICE
+    obj.larap.resolution_mode, obj.larap.cell_size = "SIZE", 0.01
+    assert operators.estimated_cells(obj) == 401 * 51 * 51
+    obj.larap.cell_size = 1e-6  # the property's least: no overflow, still asks
+    assert operators.estimated_cells(obj) > operators.LARGE_LATTICE

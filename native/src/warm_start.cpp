@@ -20,23 +20,30 @@ double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& bef
   const double spread_t = m.tt - m.w * tc.squaredNorm();
   Eigen::JacobiSVD<Eigen::Matrix3d> spread(cov_pp, Eigen::ComputeFullU);
   const Eigen::Vector3d s = spread.singularValues();
-  if (s[1] > 1e-10 * s[0] && s[0] > 0.0) {
+  // Spreads are differences of large sums: below these they are rounding noise, and a rotation
+  // fitted to noise would turn a part held by one point (or aimed at one point) at random,
+  // for free, so that no iteration turns it back.
+  const double noise_p = 1e-12 * m.pp.trace(), noise_t = 1e-12 * m.tt;
+  const bool spread_p = s[0] > noise_p, spread_to = spread_t > noise_t;
+  if (spread_p && spread_to && s[1] > 1e-10 * s[0]) {
     motion.R = best_rotation(cross);
-  } else if (s[0] > 0.0) {
+  } else if (spread_p && spread_to) {
     // Collinear handles: the spin about their line is not determined; turn the line onto the
     // targets' by the least rotation (no spin). (A point cloud's components often hold two
     // points: translated only, each took many iterations to turn.)
     const Eigen::Vector3d dp = spread.matrixU().col(0);
     const Eigen::Vector3d dt = cross * dp;  // sum (t - tc) ((p - pc) . dp): the targets' line, scaled
-    if (dt.norm() > 0.0) {
-      const Eigen::Vector3d u = dt.normalized(), axis = dp.cross(u);
+    if (dt.squaredNorm() > 1e-12 * s[0] * spread_t) {
+      const Eigen::Vector3d u = dt.normalized();
+      Eigen::Vector3d axis = dp.cross(u);
+      axis -= axis.dot(dp) * dp;  // (rounding leaves a little of dp in it, which / sin magnifies)
       const double sin = axis.norm(), cos = dp.dot(u);
-      // (Eigen's Quaterniond::FromTwoVectors does the same; its antiparallel branch trips GCC 13's
-      // -Wmaybe-uninitialized.) Antiparallel lines: half a turn about any normal of the line.
+      // Antiparallel lines: half a turn about any normal of the line. (Eigen's
+      // Quaterniond::FromTwoVectors trips GCC 13's -Wmaybe-uninitialized in its own branch.)
       motion.R = Eigen::AngleAxisd(std::atan2(sin, cos), sin > 1e-12 ? Eigen::Vector3d(axis / sin) : dp.unitOrthogonal())
                      .toRotationMatrix();
     }
-  }  // a single point: translate only
+  }  // a single point, or targets at one point: translate only
   motion.t = tc - motion.R * pc;
   motion.active = true;
   // sum |R (p - pc) - (t - tc)|^2 = spread_p + spread_t - 2 tr(R^T cross)

@@ -199,6 +199,30 @@ TEST(RotationFit, RigidFitFromMomentsOfCollinearPointsTurnsTheLineWithoutSpin) {
     EXPECT_LT((motion.R * from.row(i).transpose() + motion.t - to.row(i).transpose()).norm(), 1e-12);
 }
 
+TEST(RotationFit, RigidFitOfOnePointIgnoresTheRoundingOfItsMoments) {
+  // One point with an inexact weight and coordinates: its spread, a difference of large sums, is
+  // rounding noise, and a rotation fitted to it turned a part held by one vertex at random.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-3.0, 3.0);
+  for (int trial = 0; trial < 200; ++trial) {
+    larap::RowMatrixX3d from(1, 3), to(1, 3);
+    from.row(0) << u(rng), u(rng), u(rng);
+    to.row(0) = from.row(0) + Eigen::RowVector3d(u(rng), u(rng), u(rng)) * 0.1;
+    larap::ComponentMotion motion;
+    double before = 0.0;
+    larap::fit_rigid(moments_of(from, to, std::vector<double>(1, 0.3 + 0.01 * trial)), motion, before);
+    EXPECT_TRUE(motion.R.isIdentity(0.0)) << "trial " << trial;
+    // and a line of points aimed at one target point: no turn either
+    larap::RowMatrixX3d line(3, 3), spot(3, 3);
+    for (int i = 0; i < 3; ++i) {
+      line.row(i) = from.row(0) + Eigen::RowVector3d(i * 0.7, 0, 0);
+      spot.row(i) = to.row(0);
+    }
+    larap::fit_rigid(moments_of(line, spot, std::vector<double>(3, 0.3 + 0.01 * trial)), motion, before);
+    EXPECT_TRUE(motion.R.isIdentity(0.0)) << "trial " << trial;
+  }
+}
+
 TEST(RotationFit, RigidFitFromMomentsOfOnePointTranslatesOnly) {
   larap::RowMatrixX3d from(1, 3), to(1, 3);
   from.row(0) << 1, 2, 3;

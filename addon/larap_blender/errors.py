@@ -58,7 +58,7 @@ def check_object(obj, *, need_bound=False, allow_edit_mode=False, bind=False):
 
 
 def bound_sharing(obj):
-    """The other bound mesh objects that use ``obj``'s mesh data (Alt+D duplicates)."""
+    """The other bound mesh objects in some scene that use ``obj``'s mesh data (Alt+D duplicates)."""
     me = obj.data
     if me.users < 2:
         return []
@@ -66,7 +66,8 @@ def bound_sharing(obj):
     found = []
     for other in scene_index.bound_meshes(None):
         try:
-            if other != obj and other.data == me:
+            # (one in no scene, which the artist cannot select to unbind, poses nothing either)
+            if other != obj and other.data == me and scene_index.target_alive(other):
                 found.append(other)
         except ReferenceError:
             continue

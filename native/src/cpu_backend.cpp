@@ -61,21 +61,19 @@ struct CsrEdges {
   }
 };
 
-// Why a factorisation failed, in the user's terms: the weights that set the system's scale.
+// Why a factorisation failed, in the user's terms (the solved weights are rescaled internally:
+// only their ratio means something to the user).
 std::string not_factorised(const HandleSystem& hs) {
   double lo = 0.0, hi = 0.0;
-  bool any = false;
   for (double a : hs.alpha)
     if (a > 0.0) {
-      lo = any ? std::min(lo, a) : a;
-      hi = any ? std::max(hi, a) : a;
-      any = true;
+      lo = lo > 0.0 ? std::min(lo, a) : a;
+      hi = std::max(hi, a);
     }
-  return "the lattice system could not be factorised (not positive definite): the stiffness (gamma, " +
-         number_text(hs.gamma_eff) + " as solved) and the handles' pull (" +
-         (any ? "per vertex from " + number_text(lo) + " to " + number_text(hi) : std::string("none")) +
-         ") are too far apart in size for double precision; use handle weights nearer each other and gamma nearer "
-         "its default";
+  return "the lattice system could not be factorised (not positive definite): the stiffness (gamma) and the "
+         "handles' pull are too far apart in size for double precision" +
+         (lo > 0.0 ? " (the pull per handle vertex varies by a factor of " + number_text(hi / lo) + ")" : std::string()) +
+         "; use handle weights nearer each other and gamma nearer its default";
 }
 
 class CpuBackend final : public Backend {

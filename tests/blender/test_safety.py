@@ -653,3 +653,13 @@ def test_linked_duplicates_never_overwrite_each_others_pose(core):
     with pytest.raises(RuntimeError, match="shares its mesh data"):
         bpy.ops.larap.bind()
     assert not copy.larap.bound
+    # a bound copy in no scene (unlinked, kept by a fake user) poses nothing and blocks nothing
+    activate(obj)
+    assert bpy.ops.object.duplicate(linked=True) == {"FINISHED"}
+    orphan = bpy.context.active_object
+    for coll in list(orphan.users_collection):
+        coll.objects.unlink(orphan)
+    orphan.use_fake_user = True
+    bpy.context.view_layer.update()
+    activate(obj)
+    assert orphan.larap.bound and bpy.ops.larap.solve() == {"FINISHED"}

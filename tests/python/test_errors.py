@@ -166,7 +166,7 @@ def test_a_system_that_cannot_be_factorised_says_why(capfd):
     """Handle weights 1e300 apart: the factorisation fails with a message naming gamma and the
     handles' pull, and CHOLMOD prints nothing of its own."""
     d = bound()
-    with pytest.raises(RuntimeError, match="gamma.*handles' pull.*too far apart"):
+    with pytest.raises(RuntimeError, match=r"gamma\) and the handles' pull are too far apart.*factor of 1e\+"):
         d.set_handle_groups([np.arange(5), np.arange(60, 65)], weights=[1e300, 1.0])
     assert "CHOLMOD" not in capfd.readouterr().out
 

@@ -8,8 +8,8 @@ progress indicator and report the whole operation's time.
 import traceback
 
 import bpy
+import numpy as np
 from bpy.props import BoolProperty, IntProperty, StringProperty
-from mathutils import Vector
 
 from . import core
 from .progress import Progress
@@ -77,14 +77,9 @@ def estimated_cells(obj):
     if s.resolution_mode == "CELLS":
         return int(s.cells)
     if s.resolution_mode == "SIZE":
-        box = [Vector(c) for c in obj.bound_box]
-        lo = Vector(tuple(min(c[a] for c in box) for a in range(3)))
-        hi = Vector(tuple(max(c[a] for c in box) for a in range(3)))
-        h = max(float(s.cell_size), 1e-12)
-        n = 1
-        for a in range(3):
-            n *= int(min((hi[a] - lo[a]) / h, 1e7)) + 1
-        return min(n, 2**31 - 1)
+        box = np.array(obj.bound_box)  # 8 corners, object space
+        per_axis = np.minimum(np.ptp(box, axis=0) / float(s.cell_size), 1e7).astype(np.int64) + 1
+        return int(min(np.prod(per_axis, dtype=np.float64), 2**31 - 1))
     return 0  # Auto: about 6,000
 
 
@@ -150,8 +145,8 @@ class LARAP_OT_unbind(_LarapOp, bpy.types.Operator):
     bl_label = "LARAP Unbind"
 
     def run(self, context, obj):
+        core.check_object(obj, allow_edit_mode=True)
         if not obj.larap.bound:  # nothing to undo either: no step in the undo history
-            core.check_object(obj, allow_edit_mode=True)
             self.report({"INFO"}, "%r is not bound" % obj.name)
             return {"CANCELLED"}
         _leave_edit_mode(self, context, obj)

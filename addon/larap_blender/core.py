@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from . import preview
+from . import key_edits, preview
 from .bake import (AnimationBake, LarapCancelled, bake_animation, bake_shape_key, is_baked, pose_key_hidden,
                    remove_bake)
 from .errors import ENGINE_ERRORS, LarapError, TopologyChanged, bound_sharing, check_object, engine_errors
@@ -181,13 +181,22 @@ def posed_meshes(context):
 def unbind(obj):
     """Remove what bind made (the pose key LARAP created; the Basis if bind created it and no other
     key is left) and forget the engine. Handles, their vertex groups and targets, other shape keys,
-    modifiers and every other object are kept."""
+    modifiers and every other object are kept. Hand edits of the pose key are kept in a key of
+    their own (key_edits.py), whose name is returned (else None)."""
     check_object(obj)
     preview.stop(obj)
-    if not bound_sharing(obj):  # else the key is also the pose of another bound user of this mesh
+    kept = None
+    s = obj.larap
+    if bound_sharing(obj):  # the key is also the pose of another bound user of this mesh: it stays
+        s.owned_key_name = ""  # and is that user's to remove
+        s.created_basis = False
+    else:
+        kept = key_edits.keep(obj)
         remove_pose_key(obj)
-    obj.larap.bound = False
+    key_edits.put(obj, "")
+    s.bound = False
     drop_runtime(obj)
+    return kept
 
 
 def _next_group_name(obj):

@@ -7,9 +7,9 @@ loops over vertices in Python. Positions are object-local, (n, 3) float32.
 Reads: rest positions (the Basis key, or the mesh when it has no keys), any key's positions, the
 polygon topology (its hash, and a fan triangulation for the engine), vertex-group weights and the
 selection. Writes: the pose key (``Object.larap.shape_key``, relative to Basis, created and owned
-by LARAP), other keys LARAP adds (bake), the mesh vertices (apply, undoing a created Basis) and
-the restores of a snapshot (transaction.py). With shape keys present, writing ``vertices.co`` has
-no visible effect: write the key.
+by LARAP), other keys LARAP adds (bake; a copy of hand edits of the pose key, key_edits.py), the
+mesh vertices (apply, undoing a created Basis) and the restores of a snapshot (transaction.py).
+With shape keys present, writing ``vertices.co`` has no visible effect: write the key.
 """
 import hashlib
 
@@ -209,6 +209,28 @@ def write_key(obj, name, co):
     kb.relative_key = keys.reference_key
     obj.data.update_tag()
     return kb
+
+
+def add_key_copy(obj, name, co):
+    """A new key holding (n,3) positions ``co``, relative to Basis, at value 0, named ``name`` (or
+    ``name.001`` ... when taken: never an existing key)."""
+    keys = obj.data.shape_keys
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    write_block(kb, co)
+    kb.relative_key = keys.reference_key
+    kb.value = 0.0
+    obj.data.update_tag()
+    return kb
+
+
+def remove_keys(obj, names):
+    """Remove the shape keys ``names`` that exist (keys LARAP added in an operation it undoes)."""
+    keys = obj.data.shape_keys
+    for name in names:
+        kb = keys.key_blocks.get(name) if keys is not None else None
+        if kb is not None and kb != keys.reference_key:
+            obj.shape_key_remove(kb)
+            keys = obj.data.shape_keys
 
 
 def apply_offsets(obj, pose, rest, skip):

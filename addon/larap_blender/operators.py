@@ -150,8 +150,12 @@ class LARAP_OT_unbind(_LarapOp, bpy.types.Operator):
             self.report({"INFO"}, "%r is not bound" % obj.name)
             return {"CANCELLED"}
         _leave_edit_mode(self, context, obj)
-        core.unbind(obj)
-        self.report({"INFO"}, "Unbound %r" % obj.name)
+        kept = core.unbind(obj)
+        if kept:
+            self.report({"WARNING"}, "Unbound %r; the hand edits of its pose key are kept in the shape key %r"
+                        % (obj.name, kept))
+        else:
+            self.report({"INFO"}, "Unbound %r" % obj.name)
 
 
 class LARAP_OT_handle_add(_LarapOp, bpy.types.Operator):

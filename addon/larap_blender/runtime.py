@@ -46,6 +46,7 @@ class Runtime:
         self.pose_version = 0
         self.last_error = ""
         self.warnings = []
+        self.kept_edits = ""  # the key the last hand edits of the pose key were kept in (key_edits.py)
         self.validated = False  # False: the next ensure_runtime does a full validation
         self.lattice_current = False  # the engine's lattice is the pose in the pose key (overlay)
         self.handle_points = None  # (key, points, owner): session.handle_points of the last pose

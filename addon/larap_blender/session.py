@@ -9,7 +9,8 @@ preview (preview.py) a step poses only the lattice and the preview draws it; wit
 pose key is written. Confirm evaluates the moved target and writes the final pose of it (one
 pose per set of targets, as Live's catch-up would; when that solve fails, confirm restores as
 cancel does and re-raises); cancel restores the pose key, the target's
-transform and what the pose key was recorded as, bit-exactly, and the engine's lattice as it was
+transform and what the pose key was recorded as (and removes a copy of hand edits of the pose key
+that a step made: key_edits.py), bit-exactly, and the engine's lattice as it was
 when the drag began (when the engine held the shown pose; else it starts from rest, and the
 overlay shows the rest lattice, labelled); nothing solves again. While a drag runs, neither Live
 nor the catch-up (catchup.py) writes its mesh.
@@ -20,9 +21,9 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
-from . import catchup, preview
+from . import catchup, key_edits, preview
 from .errors import LarapError, check_object
-from .mesh_data import key_positions, restore_pose_key
+from .mesh_data import key_positions, remove_keys, restore_pose_key
 from .runtime import ensure_runtime, runtime
 from .solving import set_stored_signature, solve, stored_signature
 from .targets import flat, membership, target_alive, target_matrix, target_signature
@@ -178,6 +179,8 @@ class PoseSession:
             except Exception:  # then a cancel starts the engine from rest, as without it
                 self.lattice_state = None
         self.stored = stored_signature(obj)
+        self.key_record = key_edits.get(obj)
+        self.kept = []  # keys made during the drag to keep hand edits of the pose key (cancel removes them)
         self.wrote = False
         self.key_existed = bool(obj.data.shape_keys and obj.data.shape_keys.key_blocks.get(s.shape_key))
         self.snapshot = key_positions(obj, s.shape_key) if self.key_existed else None
@@ -231,11 +234,15 @@ class PoseSession:
             self.last = solve(obj, weights=weights, validate="fast", overrides=overrides, lattice_only=True)
             if self.last.handles == 0:  # the rest pose was written: nothing to draw instead
                 self.wrote = True
+                if self.last.kept:
+                    self.kept.append(self.last.kept)
                 return self.last
             if preview.show(obj):
                 return self.last
         self.wrote = True
         self.last = solve(obj, weights=weights, validate="fast", overrides=overrides)
+        if self.last.kept:
+            self.kept.append(self.last.kept)
         return self.last
 
     def _end(self):
@@ -275,7 +282,9 @@ class PoseSession:
         _transform_restore(self.target, self.bone, self.transform)
         if self.wrote:
             restore_pose_key(obj, self.snapshot)
+            remove_keys(obj, self.kept)  # the hand edits are back in the pose key
         set_stored_signature(obj, self.stored)
+        key_edits.put(obj, self.key_record)
         preview.stop(obj)
         _evaluate_targets()
         rt = runtime(obj)

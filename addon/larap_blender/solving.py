@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from . import preview
+from . import key_edits, preview
 from .errors import check_object, engine_errors
 from .mesh_data import key_positions, write_pose
 from .props import upgrade_settings
@@ -84,8 +84,9 @@ def key_up_to_date(obj):
 
 
 class SolveResult:
-    def __init__(self, ms, engine_ms, warnings, weights, handles):
+    def __init__(self, ms, engine_ms, warnings, weights, handles, kept=None):
         self.ms = ms
+        self.kept = kept  # the name of the key that now holds hand edits of the pose key, or None
         self.engine_ms = engine_ms
         self.warnings = warnings
         self.weights = weights
@@ -123,6 +124,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     final = weights == "final"
     lattice_only = lattice_only and not final and pose.count > 0
     engine_ms = 0.0
+    kept = None
     # Until this solve succeeds the engine's lattice is not the shown pose's (the overlay says so,
     # and a drag's cancel does not put back what a failed solve left).
     rt.lattice_current = False
@@ -158,7 +160,12 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     if lattice_only:
         rt.needs_catchup = True
     elif write:
+        kept = key_edits.keep(obj)
+        if kept:
+            warnings.insert(0, key_edits.message(s.shape_key, kept))
+            rt.kept_edits = kept
         write_pose(obj, rt.out)
+        key_edits.record(obj, rt.out, rt.rest_hash)
         rt.needs_catchup = not final
         # An interactive pose is recorded as such: a final pose of no targets (catch up on reload).
         set_stored_signature(obj, pose_signature(obj) if final and from_rest and not overrides else INTERACTIVE)
@@ -168,7 +175,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     rt.last_error = ""
     rt.warnings = warnings
     rt.target_sig = target_signature(obj) if not overrides else None
-    return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count)
+    return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count, kept)
 
 
 def current_pose(obj):

@@ -2,16 +2,20 @@
 """All or nothing: an operation that fails part-way leaves the object as it was.
 
 :func:`preserve_on_error` snapshots what an operation may change (the mesh positions, every shape
-key with its settings and key animation, the LARAP settings, the handles' rest matrices and the
-runtime) and restores it if the block raises, then re-raises. Bind, Bake and Apply run inside it.
+key with its settings and key animation, the LARAP settings, the pose key's records in the object,
+the handles' rest matrices and the runtime) and restores it if the block raises, then re-raises. Bind, Bake and Apply run inside it.
 """
 import contextlib
 
+from .key_edits import RECORD_PROP
 from .mesh_data import block_positions, mesh_positions, set_mesh_positions, write_block
 from .runtime import restore_entry, snapshot_entry
+from .solving import POSE_SIGNATURE_PROP
 
 _SETTING_FIELDS = ("bound", "bind_vertex_count", "bind_topology", "created_basis", "owned_key_name",
                    "shape_key", "runtime_id")
+# The object's ID properties that describe the pose key: what it was solved for, what LARAP wrote.
+_ID_PROPS = (POSE_SIGNATURE_PROP, RECORD_PROP)
 _KEY_FIELDS = ("slider_max", "slider_min", "value", "mute", "vertex_group", "interpolation")
 # Keyframe points of the shape keys' f-curves (their "co" is (frame, value), not a vertex position).
 _POINT_VECTORS = ("co", "handle_left", "handle_right")
@@ -26,6 +30,7 @@ def _snapshot(obj):
             "handles": [(tuple(h.rest_matrix), h.has_rest, h.rest_target, h.rest_subtarget) for h in s.handles],
             "active_shape_key_index": obj.active_shape_key_index,
             "show_only_shape_key": obj.show_only_shape_key,
+            "id_props": {p: obj.get(p) for p in _ID_PROPS},
             "keys": None, "anim": None}
     snap["runtime"] = snapshot_entry(obj)
     keys = me.shape_keys
@@ -95,6 +100,11 @@ def _restore(obj, snap):
     obj.active_shape_key_index = snap["active_shape_key_index"]
     for f, v in snap["settings"].items():
         setattr(s, f, v)
+    for p, v in snap["id_props"].items():
+        if v is not None:
+            obj[p] = v
+        elif p in obj:
+            del obj[p]
     for h, (m, has, rest_target, rest_subtarget) in zip(s.handles, snap["handles"]):
         h.rest_matrix = m
         h.has_rest = has

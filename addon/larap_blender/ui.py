@@ -154,6 +154,11 @@ def _status_box(layout, obj, context):
             _label_lines(col, rt.last_error, context=context)
         for w in rt.warnings[:3]:
             _label_lines(col, w, icon="INFO", context=context)
+        keys = obj.data.shape_keys
+        if rt.kept_edits and keys is not None and rt.kept_edits in keys.key_blocks \
+                and not any(rt.kept_edits in w for w in rt.warnings[:3]):
+            _label_lines(col, "Hand edits of the pose key are kept in %r (value 0)" % rt.kept_edits,
+                         icon="SHAPEKEY_DATA", context=context)
     else:
         box.label(text="Lattice rebuilt at the next pose", icon="INFO")
 

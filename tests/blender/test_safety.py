@@ -644,6 +644,9 @@ def test_linked_duplicates_never_overwrite_each_others_pose(core):
     activate(copy)
     assert bpy.ops.larap.unbind() == {"FINISHED"}
     assert obj.data.shape_keys.key_blocks.get("LARAP") is not None and obj.larap.bound
+    # the key is the original's now: the unbound copy no longer claims it (or a Basis it made)
+    assert copy.larap.owned_key_name == "" and not copy.larap.created_basis
+    assert obj.larap.owned_key_name == "LARAP"
     activate(obj)
     targets[1].location.z += 0.2
     bpy.context.view_layer.update()

@@ -107,3 +107,16 @@ def test_panel_without_engine_shows_message(addon):
             assert "LARAP engine not built" in str(exc) and "Traceback" not in str(exc)
         else:
             raise AssertionError("bind without an engine must report an error")
+
+
+def test_panel_says_where_hand_edits_of_the_pose_key_were_kept(core):
+    obj, rest, left, right, targets = bar_with_handles(core)
+    bpy.ops.larap.solve()
+    obj.data.shape_keys.key_blocks["LARAP"].data[3].co.z += 0.2
+    targets[1].location.z += 0.2
+    assert core.solve(obj).kept == "LARAP edits"
+    core.solve(obj)  # the warning of the solve that kept them is gone; the panel's line stays
+    labels = " ".join(draw(bpy.types.VIEW3D_PT_larap).labels())
+    assert "Hand edits of the pose key are kept in 'LARAP edits'" in labels, labels
+    obj.shape_key_remove(obj.data.shape_keys.key_blocks["LARAP edits"])
+    assert "Hand edits" not in " ".join(draw(bpy.types.VIEW3D_PT_larap).labels())

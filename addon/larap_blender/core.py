@@ -29,9 +29,9 @@ from .runtime import (_RUNTIMES, Runtime, after_undo, build_runtime, drop_runtim
 from .session import PoseSession, handle_points
 from .solving import FINAL_TOLERANCE, SolveResult, current_pose, solve
 from .progress import Progress, progress as _progress
-from .targets import (flat, gather, handle_local_transform, meshes_driven_by, membership, quiet_retarget,
-                      record_rest, retarget_keep_pose, target_alive, target_matrix, target_names,
-                      target_signature)
+from .targets import (flat, follow_bone_renames, gather, handle_local_transform, meshes_driven_by, membership,
+                      quiet_retarget, record_rest, retarget_keep_pose, target_alive, target_matrix,
+                      target_names, target_signature)
 from .transaction import preserve_on_error
 
 __all__ = [
@@ -120,7 +120,8 @@ def back_to_rest(obj):
     the same way. Animated targets return to their animation at the next frame change."""
     check_object(obj, need_bound=True)
     from mathutils import Matrix as _M
-    moved, warnings = set(), []
+    moved = set()
+    warnings = ["handle's bone %r was renamed %r: the handle follows it" % pair for pair in follow_bone_renames(obj)]
     for h in obj.larap.handles:
         if not h.has_rest or not target_alive(h.target):
             continue

@@ -116,6 +116,10 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
     # target's motion from it, so the new target takes over without a jump.
     rest_target: PointerProperty(type=bpy.types.Object, options={"HIDDEN"})
     rest_subtarget: StringProperty(options={"HIDDEN"})
+    # The bone's rest in its armature (matrix_local, row-major, then its length) when the handle
+    # last found it by name: a renamed bone is found again by it (targets.follow_bone_renames).
+    bone_rest: FloatVectorProperty(size=17, options={"HIDDEN"})
+    has_bone_rest: BoolProperty(default=False, options={"HIDDEN"})
 
 
 class LARAP_PG_settings(bpy.types.PropertyGroup):

@@ -26,7 +26,7 @@ from .errors import LarapError, check_object
 from .mesh_data import key_positions, remove_keys, restore_pose_key
 from .runtime import ensure_runtime, runtime
 from .solving import set_stored_signature, solve, stored_signature
-from .targets import flat, membership, target_alive, target_matrix, target_signature
+from .targets import flat, follow_bone_renames, membership, target_alive, target_matrix, target_signature
 
 _DRAGGING = set()  # runtime ids of meshes with an active PoseSession
 
@@ -160,6 +160,7 @@ class PoseSession:
         s = obj.larap
         if not (0 <= self.handle_index < len(s.handles)):
             raise LarapError("No handle %d" % self.handle_index)
+        follow_bone_renames(obj)
         h = self.handle
         if not target_alive(h.target):
             raise LarapError("Handle %r has no target" % h.vertex_group)

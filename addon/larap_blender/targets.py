@@ -9,7 +9,8 @@ falloff; the handle's Weight) and one transform per group: the target's motion s
 expressed in the mesh's local space. The groups are rebuilt only when the usable handles or
 their vertex groups change; a pose costs nothing per handle vertex in Python.
 Picking another target for a bound handle keeps the pose (:func:`retarget_keep_pose`): the new
-target's rest is recorded where the handle's vertices are now, so nothing jumps.
+target's rest is recorded where the handle's vertices are now, so nothing jumps. A bone renamed
+after it was picked is found again by its rest in the armature (:func:`follow_bone_renames`).
 :func:`target_signature` is what a solve was made from, so Live can skip a solve that would give
 the same pose.
 
@@ -54,7 +55,61 @@ def object_matrix(t, bone, label="", overrides=None):
 
 def target_matrix(handle, overrides=None):
     """World matrix of a handle's target now, or raise LarapError (missing target/bone)."""
-    return object_matrix(handle.target, handle.subtarget, handle.vertex_group, overrides)
+    return object_matrix(handle.target, bone_name(handle), handle.vertex_group, overrides)
+
+
+# ----------------------------------------------------------------------------------------------
+# A renamed bone is followed (Blender renames it in constraints and vertex groups, not here)
+
+def _bone_rest(bone):
+    return np.array(flat(bone.matrix_local) + [bone.length], dtype=np.float32)
+
+
+def bone_name(handle):
+    """The name of the handle's bone now: ``subtarget``, or, when its armature has no bone of that
+    name, the one bone whose rest (matrix_local and length) is the one recorded for it (the bone
+    was renamed); ``subtarget`` when none or several match. Reads only (safe in draw callbacks)."""
+    name = handle.subtarget
+    t = handle.target
+    if not name or not handle.has_bone_rest or not target_alive(t) or t.type != "ARMATURE":
+        return name
+    bones = t.data.bones
+    if name in bones:
+        return name
+    want = np.asarray(handle.bone_rest, dtype=np.float32)
+    tol = 1e-6 * max(1.0, float(np.abs(want).max()))
+    found = [b.name for b in bones if np.abs(_bone_rest(b) - want).max() <= tol]
+    return found[0] if len(found) == 1 else name
+
+
+def follow_bone_renames(obj):
+    """Point every handle of ``obj`` whose bone was renamed at its new name (and record the rest of
+    every bone found by name, for a later rename). Returns [(old, new)] of the names changed."""
+    renamed = []
+    for h in obj.larap.handles:
+        t = h.target
+        if not h.subtarget or not target_alive(t) or t.type != "ARMATURE":
+            continue
+        new = bone_name(h)
+        bone = t.data.bones.get(new)
+        if bone is None:
+            continue
+        with quiet_retarget():
+            if new != h.subtarget:
+                if h.rest_target == t and h.rest_subtarget == h.subtarget:
+                    h.rest_subtarget = new
+                renamed.append((h.subtarget, new))
+                h.subtarget = new
+            _record_bone(h, bone)
+    return renamed
+
+
+def _record_bone(handle, bone):
+    """Record the rest of the handle's bone (written only when it changed)."""
+    rest = _bone_rest(bone)
+    if not handle.has_bone_rest or not np.array_equal(np.asarray(handle.bone_rest, dtype=np.float32), rest):
+        handle.bone_rest = rest.tolist()
+        handle.has_bone_rest = True
 
 
 def handle_local_transform(obj, handle, overrides=None):
@@ -75,6 +130,8 @@ def record_rest(handle, overrides=None, motion=None):
         handle.has_rest = True
         handle.rest_target = handle.target
         handle.rest_subtarget = handle.subtarget
+        if handle.subtarget:
+            _record_bone(handle, handle.target.data.bones[handle.subtarget])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -242,7 +299,7 @@ def gather(obj, rt, overrides=None):
     """The HandlePose of the object's usable handles now; warnings name the skipped ones."""
     s = obj.larap
     groups = membership(obj, rt)
-    warnings = []
+    warnings = ["handle's bone %r was renamed %r: the handle follows it" % pair for pair in follow_bone_renames(obj)]
     names, weights, maps = [], [], []
     for h in s.handles:
         if not h.enabled:

@@ -185,3 +185,84 @@ def test_adding_a_handle_with_a_user_target_to_a_posed_mesh_does_not_jump(core):
     assert bpy.ops.larap.handle_add(vertex_group="Mid", target="MidTarget") == {"FINISHED"}
     bpy.ops.larap.solve()
     assert np.abs(coords(obj, "LARAP") - pose).max() < 0.01 * diagonal(rest)
+
+
+def _bone_handle_bar(core):
+    """The bar with its Right handle on the bone "Tip" (bound there), the bone posed, solved."""
+    obj, rest, left, right, targets = bar_with_handles(core)
+    arm = armature()
+    activate(arm)
+    bpy.ops.object.mode_set(mode="EDIT")
+    other = arm.data.edit_bones.new("Other")  # a second bone, elsewhere
+    other.head, other.tail = (-2.5, 1.0, 0.0), (-3.5, 1.0, 0.3)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    h = obj.larap.handles[1]
+    h.target = arm
+    h.subtarget = "Tip"
+    activate(obj)
+    assert bpy.ops.larap.bind() == {"FINISHED"}
+    arm.pose.bones["Tip"].location = (0.0, 0.4, 0.5)
+    arm.pose.bones["Tip"].rotation_mode = "XYZ"
+    arm.pose.bones["Tip"].rotation_euler = Euler((0.3, 0.0, 0.2))
+    bpy.context.view_layer.update()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[right] - rest[right]).max() > 0.2  # really posed by the bone
+    return obj, rest, right, arm, pose
+
+
+def test_a_renamed_bone_is_followed(core):
+    """Blender renames a bone in its constraints and vertex groups, not in an add-on's settings:
+    the handle finds its bone again by the bone's rest in the armature, and the pose stays."""
+    obj, rest, right, arm, pose = _bone_handle_bar(core)
+    from larap_blender.targets import handle_problems
+    arm.data.bones["Tip"].name = "Finger"
+    assert "Finger" in arm.pose.bones and "Tip" not in arm.pose.bones
+    assert handle_problems(obj) == []  # the panel sees no missing bone, before anything is solved
+    activate(obj)
+    result = core.solve(obj)
+    h = obj.larap.handles[1]
+    assert h.subtarget == "Finger" and h.rest_subtarget in ("", "Finger")
+    assert any("'Tip' was renamed 'Finger'" in w for w in result.warnings)
+    assert np.array_equal(coords(obj, "LARAP"), pose)  # the same targets: the same pose, bit for bit
+    # The handle follows the renamed bone from now on, also in a drag and with Live.
+    arm.data.bones["Finger"].name = "Digit"
+    session = core.PoseSession(obj, 1).begin()
+    assert session.bone == "Digit"
+    session.cancel()
+    obj.larap.live = True
+    arm.data.bones["Digit"].name = "Claw"
+    arm.pose.bones["Claw"].location.z += 0.3
+    bpy.context.view_layer.update()
+    assert h.subtarget == "Claw"
+    assert np.abs(coords(obj, "LARAP")[right] - pose[right]).max() > 0.05  # posed by the moved bone
+
+
+def test_a_bone_renamed_and_moved_or_ambiguous_is_not_guessed(core):
+    obj, rest, right, arm, pose = _bone_handle_bar(core)
+    from larap_blender.targets import bone_name, handle_problems
+    h = obj.larap.handles[1]
+
+    def edit(fn):
+        activate(arm)
+        bpy.ops.object.mode_set(mode="EDIT")
+        fn(arm.data.edit_bones)
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+    def rename_and_move(bones):
+        bones["Tip"].name = "Moved"
+        bones["Moved"].head.x += 0.25
+    edit(rename_and_move)
+    assert any("bone 'Tip' not found" in p for p in handle_problems(obj))
+    edit(lambda bones: setattr(bones["Moved"].head, "x", bones["Moved"].head.x - 0.25))
+    assert bone_name(h) == "Moved"  # back where it was: found again
+
+    def twin(bones):  # a second bone where the recorded one is: neither is taken
+        t = bones.new("Twin")
+        t.head, t.tail, t.roll = bones["Moved"].head.copy(), bones["Moved"].tail.copy(), bones["Moved"].roll
+    edit(twin)
+    assert bone_name(h) == "Tip"
+    assert any("bone 'Tip' not found" in p for p in handle_problems(obj))
+    activate(obj)
+    core.solve(obj)
+    assert h.subtarget == "Tip"

@@ -5,7 +5,8 @@ Registration only. The add-on's rooms, each one concept (imports point down this
 
 * ``engine.py``: finds and imports the compiled ``larap`` engine; ``errors.py``: LarapError,
   object checks, engine exceptions translated once.
-* ``mesh_data.py``: the only writer of vertex positions and shape keys (numpy buffers).
+* ``mesh_data.py``: the only writer of vertex positions and shape keys (numpy buffers);
+  ``key_edits.py``: hand edits of the pose key are copied before LARAP overwrites them.
 * ``targets.py``: handle targets (rest matrices, where handle vertices go, signatures).
 * ``runtime.py``: the runtime-only engine cache and what each engine was told.
 * ``transaction.py``: all or nothing (snapshot, restore on error); ``progress.py``: Blender's
@@ -34,15 +35,15 @@ if "bpy" in locals():  # F8 / re-enable: reload the rooms bottom-up, each after 
     for _mod in _MODULES:  # noqa: F821 (set by the first load)
         importlib.reload(_mod)
 else:
-    from . import (engine, scene_index, props, errors, progress, mesh_data, targets, runtime, preview,
+    from . import (engine, scene_index, props, errors, progress, mesh_data, key_edits, targets, runtime, preview,
                    transaction, solving, catchup, session, handlers, bake, core, operators, modal, farm, ui,
                    overlay)
 
 import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
-_MODULES = (engine, scene_index, props, errors, progress, mesh_data, targets, runtime, preview, transaction,
-            solving, catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
+_MODULES = (engine, scene_index, props, errors, progress, mesh_data, key_edits, targets, runtime, preview,
+            transaction, solving, catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)
 

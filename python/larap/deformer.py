@@ -258,8 +258,7 @@ class Deformer:
         its (N, 3) node positions (what a preview draws from, with cell_nodes() and
         trilinear_binding()). The next solve() warm-starts from this pose."""
         T, iterations, tol, maps = self._solve_args("pose_lattice", targets, transforms, iterations, tol)
-        self._core.pose(T, iterations, tol, maps)
-        return self._core.lattice_deformed()
+        return self._core.pose(T, iterations, tol, maps)  # one locked call: the pose it made
 
     def solve_on_device(self, targets=None, iterations: int = 5, *, transforms=None, tol=None):
         """The same solve, leaving the positions on the GPU (device="cuda" only): returns a

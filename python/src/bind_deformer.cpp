@@ -231,13 +231,16 @@ void bind_deformer(py::module_& m) {
            py::arg("tolerance") = 0.0, py::arg("transforms") = false)
       .def("solve_on_device", &solve_on_device, py::arg("targets"), py::arg("iterations") = 5,
            py::arg("tolerance") = 0.0, py::arg("transforms") = false)
+      // Poses the lattice and returns its nodes in one locked call: another thread's pose cannot
+      // land between the two.
       .def("pose", [](PyDeformer& self, F64 targets, int iterations, double tolerance, bool transforms) {
              const TargetShape shape = shape_of(targets, transforms);
              const double* t = targets.data();
-             self.locked([&](D& d) {
+             return to_numpy(self.locked([&](D& d) {
                check_targets(d, shape);
                transforms ? d.pose_transforms(t, iterations, tolerance) : d.pose(t, iterations, tolerance);
-             });
+               return RowMatrixX3d(d.lattice_deformed());
+             }));
            }, py::arg("targets"), py::arg("iterations") = 5, py::arg("tolerance") = 0.0,
            py::arg("transforms") = false)
       .def_property_readonly("num_groups", [](const PyDeformer& self) {

@@ -288,6 +288,42 @@ def test_one_deformer_from_several_threads(tube):
     assert all(np.isfinite(r).all() and r.shape == ref.shape for r in results)
 
 
+def test_pose_lattice_returns_the_pose_it_made_while_another_thread_resets(tube):
+    """pose_lattice poses and reads the lattice in one locked call: a reset() from another thread
+    never lands between the two (it did: the preview then drew the rest lattice as the pose)."""
+    import sys
+    import threading
+    import time
+    V, F = tube
+    d = larap.Deformer(V, F, cells=300)
+    idx, T = bend_setup(V)
+    d.set_handles(idx)
+    rest = d.lattice_rest()
+    stop, seen_rest = [False], [0]
+
+    def resets():
+        while not stop[0]:
+            d.reset()
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    worker = threading.Thread(target=resets)
+    worker.start()
+    try:
+        end = time.perf_counter() + 1.0
+        calls = 0
+        while time.perf_counter() < end:
+            X = d.pose_lattice(T, iterations=1)
+            calls += 1
+            if np.abs(X - rest).max() < 1e-9:  # (reset() leaves the rest within rounding)
+                seen_rest[0] += 1
+    finally:
+        stop[0] = True
+        worker.join()
+        sys.setswitchinterval(old)
+    assert calls > 20 and seen_rest[0] == 0, (calls, seen_rest[0])
+
+
 def test_a_point_cloud_moved_rigidly_is_rigid_at_once(device):
     """A point cloud (no faces): most lattice components hold one or two points. Every point a
     handle, one rigid map: the warm start turns each component onto its targets (two points: the

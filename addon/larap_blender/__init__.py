@@ -9,10 +9,10 @@ Registration only. The add-on's rooms, each one concept (imports point down this
   ``key_edits.py``: hand edits of the pose key are copied before LARAP overwrites them.
 * ``targets.py``: handle targets (rest matrices, where handle vertices go, signatures).
 * ``runtime.py``: the runtime-only engine cache and what each engine was told.
-* ``transaction.py``: all or nothing (snapshot, restore on error); ``progress.py``: Blender's
-  progress indicator and the whole time of a long operation.
+* ``progress.py``: Blender's progress indicator and the whole time of a long operation.
 * ``preview.py``: the GPU preview (the posed mesh drawn from the lattice while posing).
 * ``solving.py``: one solve, targets -> engine -> pose key (or lattice only, for the preview);
+  ``transaction.py``: all or nothing (snapshot, restore on error);
   ``catchup.py``: when the mesh data catches up with the preview; ``session.py``: dragging a handle.
 * ``handlers.py``: live mode and the app handlers; ``bake.py``: shape keys from poses (one pose,
   an animation) and the bake's aftermath (Remove Bake); ``core.py``: bind/unbind, back to rest,
@@ -43,7 +43,7 @@ import bpy
 
 # Every module of the add-on, each after the modules it imports (the reload order).
 _MODULES = (engine, scene_index, props, errors, progress, mesh_data, key_edits, targets, runtime, preview,
-            transaction, solving, catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
+            solving, transaction, catchup, session, handlers, bake, core, operators, modal, farm, ui, overlay)
 # Modules with a ``classes`` tuple, registered in this order and unregistered in reverse.
 _CLASS_MODULES = (props, operators, modal, farm, ui)
 

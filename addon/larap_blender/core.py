@@ -359,6 +359,7 @@ def _apply_pose(obj):
     s = obj.larap
     apply_offsets(obj, pose, rt.rest, skip=s.shape_key)
     remove_pose_key(obj)
+    key_edits.put(obj, "")
     for h in s.handles:
         h.has_rest = False
     s.bound = False

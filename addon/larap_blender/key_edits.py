@@ -10,10 +10,10 @@ holds what LARAP wrote, its positions are copied into a new shape key "<pose key
 relative to the Basis), which LARAP never writes, and the caller says so.
 
 A Basis edit moves the pose key with it (Blender keeps the offsets of keys relative to the Basis),
-so a key that differs while the rest shape differs too (its hash against the recorded one) is the
-Basis edit's doing, not a hand edit of the pose key: nothing is kept. Edits of both, made before
-the next solve, are therefore not told apart (the rest shape change rebinds; the pose is solved
-again).
+so after one the key no longer holds what LARAP wrote either. It is kept all the same (a rounding
+of the moved key cannot be told from a hand edit, and the record's rest hash is not fresh after
+Live's fast solves), and the message says the Basis changed too. A false copy is cheap; a lost
+edit is not.
 
 The record travels with the object: undo steps, the .blend, a drag's cancel (session.py) and a
 failed Bind, Bake or Apply (transaction.py) restore it with the key. A key with no record (never
@@ -58,24 +58,31 @@ def put(obj, value):
 
 
 def edited(obj, kb):
-    """The pose key ``kb`` holds positions LARAP did not write (and the rest shape is the one they
-    were recorded on). None when there is no record to compare with."""
+    """The pose key ``kb`` holds positions LARAP did not write. None when there is no record to
+    compare with."""
     stored = get(obj)
     if not stored or kb is None:
         return None
-    crc, _, rest_hash = stored.partition("/")
     n = len(obj.data.vertices)
-    if len(kb.data) != n or _crc(block_positions(kb, n)) == crc:
+    if len(kb.data) != n:
         return False
-    return array_hash(rest_positions(obj)) == rest_hash
+    return _crc(block_positions(kb, n)) != stored.partition("/")[0]
+
+
+def _basis_changed(obj):
+    """The rest shape differs from the one recorded with the last write (as far as the record
+    knows: after fast solves it may name an older rest)."""
+    rest_hash = get(obj).partition("/")[2]
+    return bool(rest_hash) and array_hash(rest_positions(obj)) != rest_hash
 
 
 def pose_key(obj):
-    """The pose key as LARAP owns it, or None."""
+    """The pose key LARAP owns (the one it last wrote and Unbind removes), or None."""
     s = obj.larap
     keys = obj.data.shape_keys
-    kb = keys.key_blocks.get(s.shape_key) if keys is not None and s.shape_key else None
-    if kb is None or kb == keys.reference_key or kb.name != s.owned_key_name:
+    name = s.owned_key_name
+    kb = keys.key_blocks.get(name) if keys is not None and name else None
+    if kb is None or kb == keys.reference_key:
         return None
     return kb
 
@@ -87,12 +94,35 @@ def keep(obj, kb=None):
     kb = kb if kb is not None else pose_key(obj)
     if not edited(obj, kb):
         return None
+    basis = _basis_changed(obj)
     copy = add_key_copy(obj, kb.name + EDITS_SUFFIX, block_positions(kb, len(obj.data.vertices)))
     put(obj, "")
+    _KEPT.append((kb.name, copy.name, basis))
+    del _KEPT[:-20]  # Live's copies are told by the panel; operators take theirs (take_messages)
     return copy.name
 
 
-def message(pose_key, kept):
-    return ("The pose key %r held edits LARAP did not make (sculpt, Edit Mode or a script): they are "
-            "kept in the shape key %r (value 0) before LARAP writes its pose; corrections belong on a "
-            "key of their own" % (pose_key, kept))
+_KEPT = []  # (pose key, copy, the Basis changed too) since the last take_messages()
+
+
+def describe(copy):
+    """The message for the copy ``copy`` made by :func:`keep`."""
+    for key, name, basis in reversed(_KEPT):
+        if name == copy:
+            return message(key, name, basis)
+    return message("", copy)
+
+
+def message(pose_key, kept, basis_changed=False):
+    why = ("the Basis was edited too, which moves it" if basis_changed
+           else "sculpt, Edit Mode or a script")
+    return ("The pose key %r held positions LARAP did not write (%s): they are kept in the shape key "
+            "%r (value 0: set it to 1 and %r to 0 to see them); corrections belong on a key of their "
+            "own" % (pose_key, why, kept, pose_key))
+
+
+def take_messages():
+    """The messages of every copy made since the last call (operators report them)."""
+    out = [message(key, copy, basis) for key, copy, basis in _KEPT]
+    _KEPT.clear()
+    return out

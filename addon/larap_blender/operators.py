@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, IntProperty, StringProperty
 
-from . import core
+from . import core, key_edits
 from .progress import Progress
 
 
@@ -40,6 +40,15 @@ def _leave_edit_mode(op, context, obj):
 def _report_warnings(op, result):
     for w in getattr(result, "warnings", ()) or ():
         op.report({"WARNING"}, w)
+        getattr(op, "_reported", set()).add(w)
+
+
+def _report_kept_edits(op):
+    """Copies of hand edits of a pose key made during the operator (key_edits.py), once each."""
+    reported = getattr(op, "_reported", set())
+    for m in key_edits.take_messages():
+        if m not in reported:
+            op.report({"WARNING"}, m)
 
 
 class _LarapOp:
@@ -52,8 +61,12 @@ class _LarapOp:
 
     def execute(self, context):
         obj = context.object
+        key_edits.take_messages()  # (copies made before this operator were told elsewhere)
+        self._reported = set()
         try:
-            return self.run(context, obj) or {"FINISHED"}
+            result = self.run(context, obj) or {"FINISHED"}
+            _report_kept_edits(self)
+            return result
         except core.LarapError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -150,12 +163,8 @@ class LARAP_OT_unbind(_LarapOp, bpy.types.Operator):
             self.report({"INFO"}, "%r is not bound" % obj.name)
             return {"CANCELLED"}
         _leave_edit_mode(self, context, obj)
-        kept = core.unbind(obj)
-        if kept:
-            self.report({"WARNING"}, "Unbound %r; the hand edits of its pose key are kept in the shape key %r"
-                        % (obj.name, kept))
-        else:
-            self.report({"INFO"}, "Unbound %r" % obj.name)
+        core.unbind(obj)  # (a copy of hand edits of its pose key is reported by execute)
+        self.report({"INFO"}, "Unbound %r" % obj.name)
 
 
 class LARAP_OT_handle_add(_LarapOp, bpy.types.Operator):

@@ -120,6 +120,7 @@ class LARAP_PG_handle(bpy.types.PropertyGroup):
     # last found it by name: a renamed bone is found again by it (targets.follow_bone_renames).
     bone_rest: FloatVectorProperty(size=17, options={"HIDDEN"})
     has_bone_rest: BoolProperty(default=False, options={"HIDDEN"})
+    bone_rest_armature: PointerProperty(type=bpy.types.Object, options={"HIDDEN"})  # whose bone that was
 
 
 class LARAP_PG_settings(bpy.types.PropertyGroup):

@@ -162,7 +162,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     elif write:
         kept = key_edits.keep(obj)
         if kept:
-            warnings.insert(0, key_edits.message(s.shape_key, kept))
+            warnings.insert(0, key_edits.describe(kept))
             rt.kept_edits = kept
         write_pose(obj, rt.out)
         key_edits.record(obj, rt.out, rt.rest_hash)

@@ -66,18 +66,21 @@ def _bone_rest(bone):
 
 
 def bone_name(handle):
-    """The name of the handle's bone now: ``subtarget``, or, when its armature has no bone of that
-    name, the one bone whose rest (matrix_local and length) is the one recorded for it (the bone
-    was renamed); ``subtarget`` when none or several match. Reads only (safe in draw callbacks)."""
+    """The name of the handle's bone now: ``subtarget`` when that bone has the rest (matrix_local
+    and length) recorded for it, else the one bone of the same armature that has it (the bone was
+    renamed, or names were flipped); ``subtarget`` when none or several match (a bone moved in Edit
+    Mode keeps its name). Reads only (safe in draw callbacks)."""
     name = handle.subtarget
     t = handle.target
-    if not name or not handle.has_bone_rest or not target_alive(t) or t.type != "ARMATURE":
+    if (not name or not handle.has_bone_rest or not target_alive(t) or t.type != "ARMATURE"
+            or handle.bone_rest_armature != t):
         return name
     bones = t.data.bones
-    if name in bones:
-        return name
     want = np.asarray(handle.bone_rest, dtype=np.float32)
     tol = 1e-6 * max(1.0, float(np.abs(want).max()))
+    named = bones.get(name)
+    if named is not None and np.abs(_bone_rest(named) - want).max() <= tol:
+        return name
     found = [b.name for b in bones if np.abs(_bone_rest(b) - want).max() <= tol]
     return found[0] if len(found) == 1 else name
 
@@ -105,11 +108,13 @@ def follow_bone_renames(obj):
 
 
 def _record_bone(handle, bone):
-    """Record the rest of the handle's bone (written only when it changed)."""
+    """Record the rest of the handle's bone and its armature (written only when they changed)."""
     rest = _bone_rest(bone)
-    if not handle.has_bone_rest or not np.array_equal(np.asarray(handle.bone_rest, dtype=np.float32), rest):
+    if (not handle.has_bone_rest or handle.bone_rest_armature != handle.target
+            or not np.array_equal(np.asarray(handle.bone_rest, dtype=np.float32), rest)):
         handle.bone_rest = rest.tolist()
         handle.has_bone_rest = True
+        handle.bone_rest_armature = handle.target
 
 
 def handle_local_transform(obj, handle, overrides=None):
@@ -126,12 +131,13 @@ def record_rest(handle, overrides=None, motion=None):
     the handle's vertices made since rest, a Matrix) the matrix the target had ``motion`` ago."""
     now = target_matrix(handle, overrides)
     with quiet_retarget():
+        if handle.subtarget:  # (target_matrix found the bone, perhaps renamed: point at it)
+            handle.subtarget = bone_name(handle)
+            _record_bone(handle, handle.target.data.bones[handle.subtarget])
         handle.rest_matrix = flat(now if motion is None else motion.inverted_safe() @ now)
         handle.has_rest = True
         handle.rest_target = handle.target
         handle.rest_subtarget = handle.subtarget
-        if handle.subtarget:
-            _record_bone(handle, handle.target.data.bones[handle.subtarget])
 
 
 # ----------------------------------------------------------------------------------------------

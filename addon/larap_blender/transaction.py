@@ -3,7 +3,8 @@
 
 :func:`preserve_on_error` snapshots what an operation may change (the mesh positions, every shape
 key with its settings and key animation, the LARAP settings, the pose key's records in the object,
-the handles' rest matrices and the runtime) and restores it if the block raises, then re-raises. Bind, Bake and Apply run inside it.
+the handles' rest matrices and bones, and the runtime) and restores it if the block raises, then
+re-raises. Bind, Bake and Apply run inside it.
 """
 import contextlib
 
@@ -11,6 +12,7 @@ from .key_edits import RECORD_PROP
 from .mesh_data import block_positions, mesh_positions, set_mesh_positions, write_block
 from .runtime import restore_entry, snapshot_entry
 from .solving import POSE_SIGNATURE_PROP
+from .targets import quiet_retarget
 
 _SETTING_FIELDS = ("bound", "bind_vertex_count", "bind_topology", "created_basis", "owned_key_name",
                    "shape_key", "runtime_id")
@@ -27,7 +29,8 @@ def _snapshot(obj):
     s = obj.larap
     snap = {"mesh": mesh_positions(me),
             "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
-            "handles": [(tuple(h.rest_matrix), h.has_rest, h.rest_target, h.rest_subtarget) for h in s.handles],
+            "handles": [(tuple(h.rest_matrix), h.has_rest, h.rest_target, h.rest_subtarget, h.subtarget,
+                         tuple(h.bone_rest), h.has_bone_rest, h.bone_rest_armature) for h in s.handles],
             "active_shape_key_index": obj.active_shape_key_index,
             "show_only_shape_key": obj.show_only_shape_key,
             "id_props": {p: obj.get(p) for p in _ID_PROPS},
@@ -105,10 +108,14 @@ def _restore(obj, snap):
             obj[p] = v
         elif p in obj:
             del obj[p]
-    for h, (m, has, rest_target, rest_subtarget) in zip(s.handles, snap["handles"]):
+    for h, entry in zip(s.handles, snap["handles"]):
+        m, has, rest_target, rest_subtarget, bone, bone_rest, has_bone, bone_arm = entry
         h.rest_matrix = m
         h.has_rest = has
         h.rest_target, h.rest_subtarget = rest_target, rest_subtarget
+        with quiet_retarget():  # (a renamed bone followed part-way: put back, not a retarget)
+            h.subtarget = bone
+        h.bone_rest, h.has_bone_rest, h.bone_rest_armature = bone_rest, has_bone, bone_arm
     restore_entry(obj, snap["runtime"])
     me.update()
 

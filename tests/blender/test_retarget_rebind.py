@@ -266,3 +266,36 @@ def test_a_bone_renamed_and_moved_or_ambiguous_is_not_guessed(core):
     activate(obj)
     core.solve(obj)
     assert h.subtarget == "Tip"
+
+
+def test_rebind_and_bind_after_a_bone_rename(core):
+    """Bind records the handle's rest through the renamed bone (it raised KeyError on the old name)."""
+    obj, rest, right, arm, pose = _bone_handle_bar(core)
+    arm.data.bones["Tip"].name = "Finger"
+    activate(obj)
+    assert bpy.ops.larap.bind() == {"FINISHED"}  # Rebind, keeping the pose
+    h = obj.larap.handles[1]
+    assert h.subtarget == "Finger" and h.rest_subtarget == "Finger"
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diagonal(rest)
+    assert bpy.ops.larap.unbind() == {"FINISHED"}
+    arm.data.bones["Finger"].name = "Digit"
+    assert bpy.ops.larap.bind() == {"FINISHED"}
+    assert h.subtarget == "Digit"
+
+
+def test_flipped_names_follow_the_bone_and_another_armature_is_not_searched(core):
+    obj, rest, right, arm, pose = _bone_handle_bar(core)
+    from larap_blender.targets import bone_name
+    h = obj.larap.handles[1]
+    arm.data.bones["Tip"].name = "tmp"  # swap the two bones' names (as Flip Names does for .L/.R)
+    arm.data.bones["Other"].name = "Tip"
+    arm.data.bones["tmp"].name = "Other"
+    assert bone_name(h) == "Other"  # the name "Tip" now belongs to the other bone
+    activate(obj)
+    core.solve(obj)
+    assert h.subtarget == "Other" and np.array_equal(coords(obj, "LARAP"), pose)
+    # Retargeted to another armature with a bone at the same rest and no bone of that name:
+    # the record is the first armature's, so nothing is adopted there.
+    arm2 = armature("Arm2")
+    h.target = arm2
+    assert h.subtarget == "Other" and bone_name(h) == "Other"

@@ -27,6 +27,7 @@ import zlib
 import numpy as np
 
 from .mesh_data import add_key_copy, array_hash, block_positions, rest_positions
+from .props import id_string, set_id_string
 
 RECORD_PROP = "_larap_key"  # object ID property: "<crc32 of the pose key as written>/<rest hash>"
 EDITS_SUFFIX = " edits"
@@ -43,18 +44,12 @@ def record(obj, co, rest_hash):
 
 def get(obj):
     """The record as stored ("" when none), for a snapshot."""
-    try:
-        return str(obj.get(RECORD_PROP, ""))
-    except (ReferenceError, TypeError):
-        return ""
+    return id_string(obj, RECORD_PROP)
 
 
 def put(obj, value):
-    """Put back a record from :func:`get`."""
-    if value:
-        obj[RECORD_PROP] = value
-    elif RECORD_PROP in obj:
-        del obj[RECORD_PROP]
+    """Put back a record from :func:`get` ("" drops it)."""
+    set_id_string(obj, RECORD_PROP, value)
 
 
 def edited(obj, kb):

@@ -35,6 +35,23 @@ GAMMA = 0.03  # the engine's larap.DEFAULT_GAMMA (the engine may be missing here
 GAMMA_BEFORE_1 = 0.1
 
 
+def id_string(obj, name):
+    """A string the add-on keeps in the object's ID property ``name`` (travels with undo steps and
+    the .blend, unlike a runtime cache); "" when unset or the object is gone."""
+    try:
+        return str(obj.get(name, ""))
+    except (ReferenceError, TypeError):
+        return ""
+
+
+def set_id_string(obj, name, value):
+    """Store ``value`` in the object's ID property ``name``; "" removes it."""
+    if value:
+        obj[name] = value
+    elif name in obj:
+        del obj[name]
+
+
 def upgrade_settings(s):
     """Brings an object's settings (``obj.larap``) to SETTINGS_VERSION without changing how it
     poses, and returns the Stiffness to solve with. Called on load and wherever an engine is given

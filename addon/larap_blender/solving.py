@@ -29,7 +29,7 @@ import numpy as np
 from . import key_edits, preview
 from .errors import check_object, engine_errors
 from .mesh_data import key_positions, write_pose
-from .props import upgrade_settings
+from .props import id_string, set_id_string, upgrade_settings
 from .runtime import ensure_runtime, resolve_device, runtime
 from .targets import gather, membership, target_signature
 
@@ -59,17 +59,11 @@ def pose_signature(obj):
 
 def stored_signature(obj):
     """The pose_signature() the pose key was last solved for with the final weights ("" unknown)."""
-    try:
-        return str(obj.get(POSE_SIGNATURE_PROP, ""))
-    except (ReferenceError, TypeError):
-        return ""
+    return id_string(obj, POSE_SIGNATURE_PROP)
 
 
 def set_stored_signature(obj, value):
-    if value:
-        obj[POSE_SIGNATURE_PROP] = value
-    elif POSE_SIGNATURE_PROP in obj:
-        del obj[POSE_SIGNATURE_PROP]
+    set_id_string(obj, POSE_SIGNATURE_PROP, value)
 
 
 def key_up_to_date(obj):

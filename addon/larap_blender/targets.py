@@ -54,15 +54,34 @@ def object_matrix(t, bone, label="", overrides=None):
 
 
 def target_matrix(handle, overrides=None):
-    """World matrix of a handle's target now, or raise LarapError (missing target/bone)."""
-    return object_matrix(handle.target, bone_name(handle), handle.vertex_group, overrides)
+    """World matrix of a handle's target now, or raise LarapError (missing target/bone). The bone
+    is read by its name (a pose follows renames first: :func:`follow_bone_renames`)."""
+    return object_matrix(handle.target, handle.subtarget, handle.vertex_group, overrides)
 
 
 # ----------------------------------------------------------------------------------------------
 # A renamed bone is followed (Blender renames it in constraints and vertex groups, not here)
 
 def _bone_rest(bone):
-    return np.array(flat(bone.matrix_local) + [bone.length], dtype=np.float32)
+    m = bone.matrix_local  # row-major, as flat(), then the length
+    return np.array((*m[0], *m[1], *m[2], *m[3], bone.length), dtype=np.float32)
+
+
+def _resolve_bone(handle):
+    """(the name of the handle's bone now, whether that bone has the recorded rest); see bone_name."""
+    name = handle.subtarget
+    t = handle.target
+    if (not name or not handle.has_bone_rest or not target_alive(t) or t.type != "ARMATURE"
+            or handle.bone_rest_armature != t):
+        return name, False
+    bones = t.data.bones
+    want = np.asarray(handle.bone_rest, dtype=np.float32)
+    tol = 1e-6 * max(1.0, float(np.abs(want).max()))
+    named = bones.get(name)
+    if named is not None and np.abs(_bone_rest(named) - want).max() <= tol:
+        return name, True
+    found = [b.name for b in bones if np.abs(_bone_rest(b) - want).max() <= tol]
+    return (found[0], True) if len(found) == 1 else (name, False)
 
 
 def bone_name(handle):
@@ -70,19 +89,7 @@ def bone_name(handle):
     and length) recorded for it, else the one bone of the same armature that has it (the bone was
     renamed, or names were flipped); ``subtarget`` when none or several match (a bone moved in Edit
     Mode keeps its name). Reads only (safe in draw callbacks)."""
-    name = handle.subtarget
-    t = handle.target
-    if (not name or not handle.has_bone_rest or not target_alive(t) or t.type != "ARMATURE"
-            or handle.bone_rest_armature != t):
-        return name
-    bones = t.data.bones
-    want = np.asarray(handle.bone_rest, dtype=np.float32)
-    tol = 1e-6 * max(1.0, float(np.abs(want).max()))
-    named = bones.get(name)
-    if named is not None and np.abs(_bone_rest(named) - want).max() <= tol:
-        return name
-    found = [b.name for b in bones if np.abs(_bone_rest(b) - want).max() <= tol]
-    return found[0] if len(found) == 1 else name
+    return _resolve_bone(handle)[0]
 
 
 def follow_bone_renames(obj):
@@ -93,7 +100,9 @@ def follow_bone_renames(obj):
         t = h.target
         if not h.subtarget or not target_alive(t) or t.type != "ARMATURE":
             continue
-        new = bone_name(h)
+        new, matched = _resolve_bone(h)
+        if matched and new == h.subtarget:  # the common case, each pose: nothing to write
+            continue
         bone = t.data.bones.get(new)
         if bone is None:
             continue
@@ -103,7 +112,8 @@ def follow_bone_renames(obj):
                     h.rest_subtarget = new
                 renamed.append((h.subtarget, new))
                 h.subtarget = new
-            _record_bone(h, bone)
+            if not matched:  # first found by name, or moved in Edit Mode: its rest now
+                _record_bone(h, bone)
     return renamed
 
 
@@ -129,10 +139,12 @@ def handle_local_transform(obj, handle, overrides=None):
 def record_rest(handle, overrides=None, motion=None):
     """Record the handle's rest: its target's world matrix now, or with ``motion`` (the world motion
     the handle's vertices made since rest, a Matrix) the matrix the target had ``motion`` ago."""
+    with quiet_retarget():
+        if handle.subtarget:  # a bone renamed since its record: point at it first
+            handle.subtarget = bone_name(handle)
     now = target_matrix(handle, overrides)
     with quiet_retarget():
-        if handle.subtarget:  # (target_matrix found the bone, perhaps renamed: point at it)
-            handle.subtarget = bone_name(handle)
+        if handle.subtarget:
             _record_bone(handle, handle.target.data.bones[handle.subtarget])
         handle.rest_matrix = flat(now if motion is None else motion.inverted_safe() @ now)
         handle.has_rest = True
@@ -230,6 +242,7 @@ def on_target_changed(handle):
     if _QUIET[0]:
         return
     try:
+        handle.has_bone_rest = False  # the artist picked this bone (or target): its rest is recorded anew
         obj = handle.id_data
         if obj is None or obj.type != "MESH" or not obj.larap.bound:
             return
@@ -349,8 +362,8 @@ def handle_problems(obj):
         if reason:
             problems.append(reason)
             continue
-        try:
-            target_matrix(h)
+        try:  # (a renamed bone is not a problem: the next pose follows it)
+            object_matrix(h.target, bone_name(h), h.vertex_group)
         except LarapError as exc:
             problems.append("%s; skipped" % exc)
     return problems

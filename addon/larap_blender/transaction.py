@@ -10,6 +10,7 @@ import contextlib
 
 from .key_edits import RECORD_PROP
 from .mesh_data import block_positions, mesh_positions, set_mesh_positions, write_block
+from .props import id_string, set_id_string
 from .runtime import restore_entry, snapshot_entry
 from .solving import POSE_SIGNATURE_PROP
 from .targets import quiet_retarget
@@ -33,7 +34,7 @@ def _snapshot(obj):
                          tuple(h.bone_rest), h.has_bone_rest, h.bone_rest_armature) for h in s.handles],
             "active_shape_key_index": obj.active_shape_key_index,
             "show_only_shape_key": obj.show_only_shape_key,
-            "id_props": {p: obj.get(p) for p in _ID_PROPS},
+            "id_props": {p: id_string(obj, p) for p in _ID_PROPS},
             "keys": None, "anim": None}
     snap["runtime"] = snapshot_entry(obj)
     keys = me.shape_keys
@@ -104,10 +105,7 @@ def _restore(obj, snap):
     for f, v in snap["settings"].items():
         setattr(s, f, v)
     for p, v in snap["id_props"].items():
-        if v is not None:
-            obj[p] = v
-        elif p in obj:
-            del obj[p]
+        set_id_string(obj, p, v)
     for h, entry in zip(s.handles, snap["handles"]):
         m, has, rest_target, rest_subtarget, bone, bone_rest, has_bone, bone_arm = entry
         h.rest_matrix = m

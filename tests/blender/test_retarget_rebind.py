@@ -299,3 +299,18 @@ def test_flipped_names_follow_the_bone_and_another_armature_is_not_searched(core
     arm2 = armature("Arm2")
     h.target = arm2
     assert h.subtarget == "Other" and bone_name(h) == "Other"
+
+
+def test_picking_another_bone_of_the_armature_is_kept(core):
+    """The bone record follows renames, never an artist's pick: a handle moved to another bone of
+    the same armature stays on it (it is not taken back to the recorded bone), and keeps the pose."""
+    obj, rest, right, arm, pose = _bone_handle_bar(core)
+    h = obj.larap.handles[1]
+    h.subtarget = "Other"  # as the panel's field does
+    activate(obj)
+    core.solve(obj)
+    assert h.subtarget == "Other" and h.rest_subtarget == "Other"
+    assert np.abs(coords(obj, "LARAP") - pose).max() < 1e-3 * diagonal(rest)
+    arm.data.bones["Other"].name = "Renamed"  # and the record is now the new bone's
+    core.solve(obj)
+    assert h.subtarget == "Renamed"

@@ -75,6 +75,14 @@ struct Deformer::Impl {
   HandleSpec spec;            // the handle vertices, their groups and weights, rest positions
   Eigen::Vector3d origin;     // centre of the rest lattice: centres the handle sums
   std::vector<uint8_t> fine_anchored;
+  std::vector<std::array<int32_t, 2>> fine_group_components;  // (group, component) of the rows
+  // The last solve's targets, to tell the groups the user kept where they were (warm_start.h):
+  // after set_handles or reset the rest (identity maps, rest rows); unknown after
+  // set_lattice_state.
+  enum class Last { Unknown, Rest, Maps, Rows } last = Last::Rest;
+  std::vector<Affine34> last_maps;
+  std::vector<double> last_rows;
+  std::vector<Eigen::Vector4d> group_ball;  // per group: centre and radius of its rest rows
   bool handles_set = false;
   bool auto_device = false;
   std::string fallback;
@@ -95,8 +103,10 @@ struct Deformer::Impl {
   void replace_backend_with_cpu(const HandleSystem& hs, const OutOfMemory& why);
   bool pose_lattice(const HandleTargets& targets, int iterations, double tolerance);
   void check_solve_args(const HandleTargets& targets, int iterations, double tolerance) const;
-  void choose_start();
-  void coarse_to_fine(const HandleTargets& targets, int iterations);
+  std::vector<uint8_t> held_groups(const HandleTargets& targets) const;
+  void remember(const HandleTargets& targets);
+  void choose_start(const std::vector<uint8_t>& held);
+  void coarse_to_fine(const HandleTargets& targets, int iterations, const std::vector<uint8_t>& held);
   void iterate_fine(int iterations, double tolerance);
   template <typename T>
   void solve(const HandleTargets& targets, int iterations, T* out, double tolerance);
@@ -220,6 +230,21 @@ void Deformer::Impl::set_spec(HandleSpec next) {
     if (handles_set) prepare_handles();
     throw;
   }
+  // New groups: the last targets are their rest. Each group's ball bounds how far a change of
+  // its map moves its rows (held_groups).
+  last = Last::Rest;
+  last_maps.clear();
+  last_rows.clear();
+  const int64_t G = int64_t(spec.group_offsets.size()) - 1;
+  group_ball.assign(size_t(std::max<int64_t>(G, 0)), Eigen::Vector4d::Zero());
+  for (int64_t g = 0; g < G; ++g) {
+    const int64_t a = spec.group_offsets[g], b = spec.group_offsets[g + 1];
+    if (a == b) continue;
+    const Eigen::Vector3d c = spec.rest.middleRows(a, b - a).colwise().mean().transpose();
+    double r = 0.0;
+    for (int64_t j = a; j < b; ++j) r = std::max(r, (spec.rest.row(j).transpose() - c).norm());
+    group_ball[size_t(g)] << c, r;
+  }
 }
 
 void Deformer::set_weights(WeightKind kind) {
@@ -246,6 +271,7 @@ void Deformer::set_gamma(double gamma) {
 void Deformer::reset() {
   impl_->backend->set_pose(impl_->lattice.rest);
   impl_->hierarchy.reset();
+  impl_->last = Impl::Last::Rest;
 }
 
 void Deformer::Impl::prepare_handles() {
@@ -260,6 +286,7 @@ void Deformer::Impl::prepare_handles() {
   for (int64_t j = 0; j < mh; ++j) b.weights_of(lattice, spec.vertices[j], &ids[j * s], &w[j * s]);
   HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, size, origin);
   fine_anchored = hs.anchored;
+  fine_group_components = group_components(hs);
   hierarchy.set_handles(spec, gamma, size, origin);
   if (hs.m > 0) {
     try {
@@ -364,12 +391,58 @@ bool Deformer::Impl::pose_lattice(const HandleTargets& targets, int iterations, 
   stats.clear_solve();
   if (spec.vertices.empty()) return false;
   backend->set_targets(targets);
-  choose_start();
+  const std::vector<uint8_t> held = held_groups(targets);
+  choose_start(held);
   stats.ms_start = ms_since(t0);
-  coarse_to_fine(targets, iterations);
+  coarse_to_fine(targets, iterations, held);
   iterate_fine(iterations, tolerance);
+  remember(targets);
   stats.ms_total = ms_since(t0);
   return true;
+}
+
+// Per group, 1 when its targets moved less than 1e-7 of the model's size since the last solve
+// (the `still` of choose_start): a group the user kept where it was. Empty when unknown. O(G) for
+// maps (a change of map moves a row at most |dA|_F (|c| + r) + |db| within the group's ball),
+// O(rows) for row targets.
+std::vector<uint8_t> Deformer::Impl::held_groups(const HandleTargets& targets) const {
+  const double still = 1e-7 * diagonal;
+  const int64_t G = int64_t(spec.group_offsets.size()) - 1;
+  std::vector<uint8_t> held;
+  if (last == Last::Unknown || (last == Last::Maps && !targets.groups) || (last == Last::Rows && !targets.rows))
+    return held;
+  held.assign(size_t(G), 0);
+  for (int64_t g = 0; g < G; ++g) {
+    if (targets.groups) {
+      Affine34 before = Affine34::Zero();
+      before.leftCols<3>().setIdentity();
+      if (last == Last::Maps) before = last_maps[size_t(g)];
+      else if (last == Last::Rows) return {};
+      const Affine34 d = targets.groups[g] - before;
+      const Eigen::Vector4d& ball = group_ball[size_t(g)];
+      held[size_t(g)] = d.leftCols<3>().norm() * (ball.head<3>().norm() + ball[3]) + d.col(3).norm() <= still;
+    } else {
+      bool kept = true;
+      for (int64_t j = spec.group_offsets[g]; kept && j < spec.group_offsets[g + 1]; ++j) {
+        const Eigen::Vector3d t(targets.rows + 3 * j);
+        const Eigen::Vector3d before = last == Last::Rows ? Eigen::Vector3d(last_rows.data() + 3 * j)
+                                                          : Eigen::Vector3d(spec.rest.row(j).transpose());
+        kept = (t - before).norm() <= still;
+      }
+      held[size_t(g)] = kept;
+    }
+  }
+  return held;
+}
+
+void Deformer::Impl::remember(const HandleTargets& targets) {
+  if (targets.groups) {
+    last_maps.assign(targets.groups, targets.groups + (spec.group_offsets.size() - 1));
+    last = Last::Maps;
+  } else {
+    last_rows.assign(targets.rows, targets.rows + 3 * spec.vertices.size());
+    last = Last::Rows;
+  }
 }
 
 void Deformer::Impl::check_solve_args(const HandleTargets& targets, int iterations, double tolerance) const {
@@ -389,14 +462,17 @@ void Deformer::Impl::check_solve_args(const HandleTargets& targets, int iteratio
 
 // Per lattice component (warm_start.h); handles that miss by less than 1e-7 of the model's size
 // count as not moved.
-void Deformer::Impl::choose_start() { warm_start(*backend, 1e-7 * diagonal, stats); }
+void Deformer::Impl::choose_start(const std::vector<uint8_t>& held) {
+  warm_start(*backend, 1e-7 * diagonal, stats,
+             held_components(fine_group_components, held, lattice.num_components));
+}
 
 // Coarse to fine: the coarse levels' increment is added to the fine level's previous pose, so
 // fine detail of the previous pose is kept and large-scale motion arrives at once.
-void Deformer::Impl::coarse_to_fine(const HandleTargets& targets, int iterations) {
+void Deformer::Impl::coarse_to_fine(const HandleTargets& targets, int iterations, const std::vector<uint8_t>& held) {
   if (hierarchy.size() == 0) return;
   const auto t0 = Clock::now();
-  const RowMatrixX3d increment = hierarchy.solve_increment(targets, iterations, fine_anchored, 1e-7 * diagonal);
+  const RowMatrixX3d increment = hierarchy.solve_increment(targets, iterations, fine_anchored, 1e-7 * diagonal, held);
   RowMatrixX3d fine;
   backend->get_pose(fine);
   backend->set_pose(fine + increment);
@@ -449,6 +525,7 @@ void Deformer::set_lattice_state(const std::vector<RowMatrixX3d>& state) {
   }
   d.backend->set_pose(state[0]);
   d.hierarchy.set_poses(std::vector<RowMatrixX3d>(state.begin() + 1, state.end()));
+  d.last = Impl::Last::Unknown;  // the targets of this pose are not known
 }
 
 RowMatrixX3d Deformer::lattice_deformed() const {

@@ -205,6 +205,13 @@ Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_no
   return M;
 }
 
+std::vector<std::array<int32_t, 2>> group_components(const HandleSystem& hs) {
+  std::vector<std::array<int32_t, 2>> out;
+  out.reserve(hs.moments.size());
+  for (const auto& mo : hs.moments) out.push_back({mo.group, mo.component});
+  return out;
+}
+
 Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_nodes) {
   std::vector<Eigen::Triplet<double>> trip;
   trip.reserve(4 * hs.glue.size());

@@ -118,6 +118,9 @@ GroupMaps group_maps(const HandleSystem& hs, const Affine34* maps);
 // K~ per lattice component of the group maps, from the groups' moments: O(groups x components).
 void group_constants(const HandleSystem& hs, const GroupMaps& maps, std::vector<double>& K);
 
+// Each (group, component) whose moments `hs` keeps: which lattice components a group's rows read.
+std::vector<std::array<int32_t, 2>> group_components(const HandleSystem& hs);
+
 // M = B^T diag(alpha) B (#N by #N).
 Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_nodes);
 // mu G^T G: the glue of carried parts (empty when nothing is carried). The system and the energy

@@ -15,6 +15,7 @@ struct Hierarchy::Level {
   std::vector<std::array<int32_t, 8>> prolong_ids;
   std::vector<std::array<double, 8>> prolong_w;
   std::vector<uint8_t> anchored;  // empty until handles are set
+  std::vector<std::array<int32_t, 2>> group_components;  // (group, component) of the handles' rows
 
   // The finer level's displacement for an increment `delta` of this level, zero where
   // `finer_anchored` holds.
@@ -85,6 +86,7 @@ void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size, c
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
     HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, size, origin);
     lv.anchored = hs.anchored;
+    lv.group_components = group_components(hs);
     lv.backend->set_handles(hs);
   }
 }
@@ -106,13 +108,15 @@ void Hierarchy::set_poses(const std::vector<RowMatrixX3d>& poses) {
 int64_t Hierarchy::num_nodes(int level) const { return levels_[size_t(level)].lattice.num_nodes(); }
 
 RowMatrixX3d Hierarchy::solve_increment(const HandleTargets& targets, int iterations,
-                                        const std::vector<uint8_t>& fine_anchored, double still) {
+                                        const std::vector<uint8_t>& fine_anchored, double still,
+                                        const std::vector<uint8_t>& held_groups) {
   SolveStats scratch;
   RowMatrixX3d delta;  // increment of the level just solved, in its nodes
   for (int l = size() - 1; l >= 0; --l) {
     Level& lv = levels_[l];
     lv.backend->set_targets(targets);
-    warm_start(*lv.backend, still, scratch);
+    warm_start(*lv.backend, still, scratch,
+               held_components(lv.group_components, held_groups, lv.lattice.num_components));
     RowMatrixX3d start;
     lv.backend->get_pose(start);
     if (l + 1 < size()) lv.backend->set_pose(start + levels_[l + 1].prolong(delta, lv.anchored));

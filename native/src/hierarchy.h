@@ -48,12 +48,13 @@ class Hierarchy {
   std::vector<RowMatrixX3d> poses() const;
   void set_poses(const std::vector<RowMatrixX3d>& poses);
 
-  // Coarse to fine: each level takes the targets, chooses its start (warm_start.h, `still` as
-  // there) and iterates `iterations` times from its own pose plus the increment of the level
+  // Coarse to fine: each level takes the targets, chooses its start (warm_start.h, `still` and
+  // `held_groups` as there) and iterates `iterations` times from its own pose plus the increment of the level
   // above. Returns the increment of level 1 prolongated to the fine lattice (#fine nodes by 3),
   // zero on the fine level's anchored nodes.
   RowMatrixX3d solve_increment(const HandleTargets& targets, int iterations,
-                               const std::vector<uint8_t>& fine_anchored, double still);
+                               const std::vector<uint8_t>& fine_anchored, double still,
+                               const std::vector<uint8_t>& held_groups);
 
  private:
   struct Level;

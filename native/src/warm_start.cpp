@@ -50,7 +50,16 @@ double fit_rigid(const ComponentMoments& m, ComponentMotion& motion, double& bef
   return std::max(0.0, cov_pp.trace() + spread_t - 2.0 * (motion.R.transpose() * cross).trace());
 }
 
-void warm_start(Backend& backend, double still, SolveStats& stats) {
+std::vector<uint8_t> held_components(const std::vector<std::array<int32_t, 2>>& pairs,
+                                     const std::vector<uint8_t>& held_groups, int32_t num_components) {
+  std::vector<uint8_t> out(size_t(std::max(num_components, 0)), 0);
+  if (held_groups.empty()) return out;
+  for (const auto& [g, c] : pairs)
+    if (held_groups[size_t(g)]) out[size_t(c)] = 1;
+  return out;
+}
+
+void warm_start(Backend& backend, double still, SolveStats& stats, const std::vector<uint8_t>& held) {
   std::vector<ComponentMoments> now, rest;
   backend.moments(/*rest=*/false, now);
   backend.moments(/*rest=*/true, rest);
@@ -65,6 +74,7 @@ void warm_start(Backend& backend, double still, SolveStats& stats) {
       carry[c].active = false;
       continue;
     }
+    if (c < held.size() && held[c]) continue;  // a held group: no rigid start (warm_start.h)
     carry[c].active = carried < 0.5 * before;
     any_carry |= carry[c].active;
     const double rested = fit_rigid(rest[c], from_rest[c], unused);

@@ -41,6 +41,14 @@ inline bool triangle_box_overlap(const Eigen::Vector3d& centre, const Eigen::Vec
   return true;
 }
 
+// Does segment (a, b) overlap the box? The triangle test on (a, b, b): its zero normal and zero
+// edge are skipped, which leaves the segment's own separating axes (the box's 3 normals and the 3
+// cross products of the box axes with the segment).
+inline bool segment_box_overlap(const Eigen::Vector3d& centre, const Eigen::Vector3d& half,
+                                const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return triangle_box_overlap(centre, half, a, b, b);
+}
+
 // Rays along axis a (b = a + 1, c = a + 2, mod 3) through the centres of a grid's columns, moved
 // by a tiny irrational-looking amount so that rays through the vertices and edges of grid-aligned
 // meshes are unlikely: ray (jb, jc) is the line (b, c) = (jb + kRayB, jc + kRayC), in grid units.

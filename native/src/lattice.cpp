@@ -414,10 +414,11 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (options.cell_size > kMaxSize)
     throw InvalidInput("cell_size " + short_number(options.cell_size) + " is beyond 1e60; scale the mesh");
   const std::vector<Eigen::Vector3i> tris = triangulate(mesh);
+  const std::vector<Eigen::Vector2i> segs = segments(mesh);
 
   Grid grid;
   if (options.cell_size > 0.0) {
-    grid = voxelize(mesh, tris, lo, hi, options.cell_size, max_bytes);
+    grid = voxelize(mesh, tris, segs, lo, hi, options.cell_size, max_bytes);
   } else {
     if (!(diag > 0.0))
       throw InvalidInput("all vertices coincide, so the lattice has no extent; give cell_size");
@@ -435,7 +436,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     double best_err = std::numeric_limits<double>::infinity();
     for (int pass = 0; pass < 5; ++pass) {
       check_memory(grid_dims(extent, h), h, max_bytes);
-      Grid g = voxelize(mesh, tris, lo, hi, h, max_bytes);
+      Grid g = voxelize(mesh, tris, segs, lo, hi, h, max_bytes);
       const int64_t kept = count_kept(g);
       const double ratio = double(kept) / double(target);
       const double err = std::abs(std::log(ratio));

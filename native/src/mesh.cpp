@@ -1,6 +1,7 @@
 #include <larap/errors.h>
 #include <larap/mesh.h>
 
+#include <algorithm>
 #include <cmath>
 #include <string>
 
@@ -46,6 +47,25 @@ std::vector<Eigen::Vector3i> triangulate(const PolygonMesh& mesh) {
     }
   }
   return tris;
+}
+
+std::vector<Eigen::Vector2i> segments(const PolygonMesh& mesh) {
+  std::vector<Eigen::Vector2i> segs;
+  const int64_t m = mesh.num_faces();
+  for (int64_t f = 0; f < m; ++f) {
+    const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
+    const int64_t a = mesh.face_indices[b];
+    int64_t other = -1;
+    bool two = true;
+    for (int64_t k = b + 1; k < e && two; ++k) {
+      const int64_t v = mesh.face_indices[k];
+      if (v == a || v == other) continue;
+      if (other < 0) other = v;
+      else two = false;  // a third distinct vertex: a polygon (triangulate's), not an edge
+    }
+    if (two && other >= 0) segs.emplace_back(int(std::min(a, other)), int(std::max(a, other)));
+  }
+  return segs;
 }
 
 }  // namespace larap

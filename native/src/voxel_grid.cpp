@@ -71,6 +71,51 @@ static void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen
   }, 2048);
 }
 
+// Marks kVertex on the cells every segment (loose edge) overlaps (the exact test), walking the
+// segment's slabs along its longest axis so that a long diagonal edge costs its length in cells,
+// not its bounding box. The cells join the lattice as a vertex's cell does (never analysed for
+// splitting), so a wire's cells are face-connected in a chain however long its edges are.
+static void mark_segments(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vector2i>& segs) {
+  const double h = g.h;
+  const Eigen::Vector3d half = Eigen::Vector3d::Constant(0.5 * h * (1.0 + 1e-9));
+  parallel_for(int64_t(segs.size()), [&](int64_t s) {
+    const Eigen::Vector3d a = V.row(segs[s][0]), b = V.row(segs[s][1]);
+    const Eigen::Vector3d pa = (a - g.origin) / h, pb = (b - g.origin) / h;  // grid units
+    const Eigen::Vector3d d = pb - pa;
+    int axis = 0;
+    d.cwiseAbs().maxCoeff(&axis);
+    auto cell_range = [&](double lo, double hi, int k, int& c0, int& c1) {
+      c0 = std::max(0, int(std::floor(lo - 1e-7)));
+      c1 = std::min(g.dims[k] - 1, int(std::floor(hi + 1e-7)));
+    };
+    int s0, s1;
+    cell_range(std::min(pa[axis], pb[axis]), std::max(pa[axis], pb[axis]), axis, s0, s1);
+    for (int slab = s0; slab <= s1; ++slab) {
+      // The part of the segment within this slab (a little wider), its box on the other axes.
+      double t0 = 0.0, t1 = 1.0;
+      if (d[axis] != 0.0) {
+        const double u = (slab - 1e-7 - pa[axis]) / d[axis], w = (slab + 1 + 1e-7 - pa[axis]) / d[axis];
+        t0 = std::max(0.0, std::min(u, w));
+        t1 = std::min(1.0, std::max(u, w));
+        if (t0 > t1) continue;
+      }
+      const Eigen::Vector3d q0 = pa + t0 * d, q1 = pa + t1 * d;
+      Eigen::Vector3i c0, c1;
+      for (int k = 0; k < 3; ++k) cell_range(std::min(q0[k], q1[k]), std::max(q0[k], q1[k]), k, c0[k], c1[k]);
+      c0[axis] = c1[axis] = slab;
+      for (int z = c0.z(); z <= c1.z(); ++z)
+        for (int y = c0.y(); y <= c1.y(); ++y)
+          for (int x = c0.x(); x <= c1.x(); ++x) {
+            const int64_t id = g.index(x, y, z);
+            if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & kVertex) continue;
+            const Eigen::Vector3d centre = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
+            if (geometry::segment_box_overlap(centre, half, a, b))
+              __atomic_fetch_or(&g.marks[id], uint8_t(kVertex), __ATOMIC_RELAXED);
+          }
+    }
+  }, 2048);
+}
+
 // 6-connected flood fill from the border through cells no triangle touches.
 static void mark_outside(Grid& g) {
   std::vector<int64_t> stack;
@@ -150,7 +195,7 @@ static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
 }
 
 Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
-              const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes) {
+              const std::vector<Eigen::Vector2i>& segs, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes) {
   Grid g;
   g.h = h;
   g.dims = grid_dims(hi - lo, h);
@@ -189,6 +234,9 @@ Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
           for (int dy = -1; dy <= 1; ++dy)
             for (int dx = -1; dx <= 1; ++dx) g.marks[g.index(x + dx, y + dy, z + dz)] |= kDilation;
       }
+  // After the dilation: a loose edge's cells between its vertices bind nothing, so they need no
+  // B-spline reach.
+  mark_segments(g, mesh.vertices, segs);
   return g;
 }
 

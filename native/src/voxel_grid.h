@@ -46,9 +46,10 @@ struct Grid {
 Eigen::Vector3i grid_dims(const Eigen::Vector3d& extent, double h);
 // Throws OutOfMemory (naming the MiB) when such a grid would not fit in max_bytes.
 void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes);
-// The marked grid of `mesh` (triangles `tris`) over the box lo..hi at cell size h.
+// The marked grid of `mesh` (triangles `tris`, loose edges `segs`) over the box lo..hi at cell
+// size h. A cell a loose edge passes through is marked kVertex, as if it held a vertex.
 Grid voxelize(const PolygonMesh& mesh, const std::vector<Eigen::Vector3i>& tris,
-              const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes);
+              const std::vector<Eigen::Vector2i>& segs, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi, double h, int64_t max_bytes);
 // Cells that count towards the `cells` target (see voxel_grid.cpp).
 int64_t count_kept(const Grid& g);
 

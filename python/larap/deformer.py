@@ -114,6 +114,8 @@ class Deformer:
 
     vertices: (n, 3) rest positions (any real dtype; copied to float64).
     faces: (m, k) integer array, a list of polygons of any sizes, or None for a point cloud.
+        A face of two distinct vertices is a loose edge (a wire mesh, a Skin modifier's
+        skeleton): the lattice keeps the cells it passes through, so the wire stays one piece.
     face_offsets: optional (m + 1,) integer array: then `faces` is the flat 1-D array of the
         polygons' vertex ids and face f is faces[face_offsets[f]:face_offsets[f + 1]] (Blender's
         loops.vertex_index with polygons.loop_start plus the loop count), passed on as it is.

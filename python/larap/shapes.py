@@ -137,6 +137,34 @@ def tube_between(p0, p1, radius, segments=12, rings=8):
     return V @ R.T + p0, F
 
 
+def stick_figure(edge=0.12):
+    """A wire mesh (edges only, no faces): a standing figure's skeleton as a Skin modifier's base
+    mesh is drawn, a spine with a neck, two arms from the shoulders and two legs from the hips,
+    each limb a chain of edges about `edge` long. Faces are two-vertex polygons (loose edges).
+    Returns (V, F, limbs): limbs maps "spine", "left_arm", "right_arm", "left_leg", "right_leg"
+    to the vertex ids of each chain (shared joints belong to the spine)."""
+    V, F, limbs = [], [], {}
+
+    def chain(name, p0, p1, start=None):
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        n = max(1, int(round(np.linalg.norm(p1 - p0) / edge)))
+        ids = [] if start is None else [start]
+        for k in range(0 if start is None else 1, n + 1):
+            V.append(p0 + (p1 - p0) * k / n)
+            ids.append(len(V) - 1)
+        F.extend([a, b] for a, b in zip(ids[:-1], ids[1:]))
+        limbs[name] = ids if start is None else ids[1:]
+        return ids
+
+    spine = chain("spine", (0, 0, 1.0), (0, 0, 2.6))
+    top = spine[int(round(0.8 * (len(spine) - 1)))]  # the shoulders' height
+    chain("left_arm", V[top], V[top] + np.array([0, 1.1, -0.1]), start=top)
+    chain("right_arm", V[top], V[top] + np.array([0, -1.1, -0.1]), start=top)
+    chain("left_leg", V[spine[0]], (0, 0.35, 0.0), start=spine[0])
+    chain("right_leg", V[spine[0]], (0, -0.35, 0.0), start=spine[0])
+    return np.array(V), F, limbs
+
+
 def character(finger_gap=0.004, finger_rings=6):
     """A figure in T-pose, 1.77 tall, made of separate closed parts as characters often are:
     torso, head, legs, arms, and on each arm a palm with four fingers pushed into it (tubes 18 mm

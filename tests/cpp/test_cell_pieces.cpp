@@ -104,7 +104,7 @@ int64_t expect_same_patches(const PolygonMesh& mesh, double h) {
   const std::vector<Eigen::Vector3i> tris = triangulate(mesh);
   const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
   const Eigen::Vector3d hi = mesh.vertices.colwise().maxCoeff().transpose();
-  const Grid g = voxelize(mesh, tris, lo, hi, h, int64_t(1) << 32);
+  const Grid g = voxelize(mesh, tris, {}, lo, hi, h, int64_t(1) << 32);
   const SurfacePatches sp = find_surface_patches(g.origin, g.h, g.dims, g.marks, mesh.vertices, tris);
   const Reference r = reference(g, sp, mesh.vertices, tris);
   std::vector<int32_t> all(sp.cells.size());
@@ -254,7 +254,7 @@ TEST(SurfacePatches, LargeTrianglesMeetingInsideACellAreOnePatch) {
   const PolygonMesh m = gen::box({0.05, 0.55, 0.55}, {29.95, 1.45, 1.45});
   const double h = 0.5;
   const std::vector<Eigen::Vector3i> tris = triangulate(m);
-  const Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(),
+  const Grid g = voxelize(m, tris, {}, m.vertices.colwise().minCoeff().transpose(),
                           m.vertices.colwise().maxCoeff().transpose(), h, int64_t(1) << 32);
   const CellPieces pieces = find_cell_pieces(g.origin, g.h, g.dims, g.marks, m.vertices, tris, mesh_parts(m),
                                              g.vertex_cells, 24);
@@ -284,7 +284,7 @@ TEST(SurfacePatches, LargeTrianglesMeetingOnlyBeyondTheCellAreTwoPatches) {
     for (int y : {3, 4}) EXPECT_EQ(lat.cell_copies(x, y, 4), 2) << "cell (" << x << ", " << y << ", 4)";
   // The patches themselves: two in each cell of the open part of the row, one where the fold is.
   const std::vector<Eigen::Vector3i> tris = triangulate(m);
-  const Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(),
+  const Grid g = voxelize(m, tris, {}, m.vertices.colwise().minCoeff().transpose(),
                           m.vertices.colwise().maxCoeff().transpose(), 1.0, int64_t(1) << 32);
   const SurfacePatches sp = find_surface_patches(g.origin, g.h, g.dims, g.marks, m.vertices, tris);
   auto several_at = [&](double x, double y) {

@@ -123,3 +123,116 @@ TEST(Lattice, CoarsenedLevelCoversEveryCell) {
     if (j >= 0) EXPECT_NEAR((coarse.rest.row(i) - fine.rest.row(j)).norm(), 0.0, 1e-12);
   }
 }
+
+// ------------------------------------------------------------------ loose edges
+
+namespace {
+
+// A helix of `n` edges, each about `edge` long: a wire mesh (faces of two vertices).
+PolygonMesh wire(int n, double edge) {
+  PolygonMesh m;
+  m.vertices.resize(n + 1, 3);
+  for (int i = 0; i <= n; ++i) {
+    const double t = 0.7 * i;
+    m.vertices.row(i) << std::cos(t), std::sin(t), 0.1 * i;
+  }
+  const double len = (m.vertices.row(1) - m.vertices.row(0)).norm();
+  m.vertices *= edge / len;
+  for (int i = 0; i < n; ++i) {
+    m.face_indices.push_back(i);
+    m.face_indices.push_back(i + 1);
+    m.face_offsets.push_back(int64_t(m.face_indices.size()));
+  }
+  return m;
+}
+
+}  // namespace
+
+TEST(Lattice, SegmentsAreFacesOfTwoDistinctVertices) {
+  PolygonMesh m;
+  m.vertices = RowMatrixX3d::Zero(5, 3);
+  m.face_indices = {0, 1, /*edge*/ 2, 1, 2, /*edge, repeated*/ 0, 1, 2, /*triangle*/ 3, /*point*/ 4, 4 /*point*/};
+  m.face_offsets = {0, 2, 5, 8, 9, 11};
+  const std::vector<Eigen::Vector2i> s = segments(m);
+  ASSERT_EQ(s.size(), 2u);
+  EXPECT_EQ(s[0], Eigen::Vector2i(0, 1));
+  EXPECT_EQ(s[1], Eigen::Vector2i(1, 2));
+  EXPECT_EQ(triangulate(m).size(), 1u);
+}
+
+// A wire whose edges are 3-4 cells long keeps the cells between its vertices: one lattice
+// component, and every kept cell a loose edge passes through (without them every vertex was a
+// component of its own, held at rest or carried alone: the wire tore apart).
+TEST(Lattice, LooseEdgesKeepTheCellsTheyPassThrough) {
+  const PolygonMesh m = wire(40, 0.35);
+  LatticeOptions opt;
+  opt.cell_size = 0.1;
+  const Lattice lat = Lattice::build(m, opt);
+  EXPECT_EQ(lat.num_components, 1);
+  // Points along every edge lie in kept cells, and (away from the cells' faces) in no others:
+  // the chain is the exact test's, not a thickened one.
+  for (int i = 0; i < 40; ++i)
+    for (int k = 0; k <= 20; ++k) {
+      const Eigen::Vector3d p = m.vertices.row(i) + (k / 20.0) * (m.vertices.row(i + 1) - m.vertices.row(i));
+      const Eigen::Vector3i c = ((p - lat.origin) / lat.h).array().floor().cast<int>();
+      EXPECT_GE(lat.cell_at(c.x(), c.y(), c.z()), 0) << "edge " << i << " at " << k / 20.0;
+    }
+  // Each kept cell is within reach of some edge (the exact test, with its 1e-9 margin).
+  for (int64_t c = 0; c < lat.num_cells(); ++c) {
+    const Eigen::Vector3d centre = lat.origin + lat.h * (lat.cell_coords[c].cast<double>() + Eigen::Vector3d::Constant(0.5));
+    double best = 1e300;
+    for (int i = 0; i < 40; ++i) {
+      const Eigen::Vector3d a = m.vertices.row(i), b = m.vertices.row(i + 1);
+      auto dist = [&](double t) { return (a + t * (b - a) - centre).cwiseAbs().maxCoeff(); };
+      double lo = 0.0, hi = 1.0;  // the max-norm distance is convex along the edge
+      for (int it = 0; it < 100; ++it) {
+        const double u = lo + (hi - lo) / 3, w = hi - (hi - lo) / 3;
+        (dist(u) < dist(w) ? hi : lo) = dist(u) < dist(w) ? w : u;
+      }
+      best = std::min(best, dist(0.5 * (lo + hi)));
+    }
+    EXPECT_LE(best, 0.5 * lat.h * (1 + 1e-6)) << "cell " << c;
+  }
+  // The same vertices without their edges: each vertex's cell alone.
+  PolygonMesh points = m;
+  points.face_indices.clear();
+  points.face_offsets = {0};
+  EXPECT_EQ(Lattice::build(points, opt).num_components, 41);
+}
+
+// A long diagonal edge, walked slab by slab along its longest axis: one face-connected chain (no
+// cell skipped where it crosses two slab boundaries at once), about 3 cells per cell of length.
+TEST(Lattice, LongDiagonalEdgeIsOneChain) {
+  PolygonMesh m;
+  m.vertices.resize(2, 3);
+  m.vertices << 0, 0, 0, 10, 10.03, 9.97;
+  m.face_indices = {0, 1};
+  m.face_offsets = {0, 2};
+  LatticeOptions opt;
+  opt.cell_size = 0.1;
+  opt.split_cells = false;
+  const Lattice lat = Lattice::build(m, opt);
+  EXPECT_EQ(lat.num_components, 1);
+  EXPECT_GT(lat.num_cells(), 3 * 100 - 10);
+  EXPECT_LE(lat.num_cells(), 3 * 100 + 10);
+  // Face-connected: a flood over shared faces reaches every cell.
+  std::vector<uint8_t> seen(size_t(lat.num_cells()), 0);
+  std::vector<int32_t> stack{0};
+  seen[0] = 1;
+  int64_t reached = 1;
+  while (!stack.empty()) {
+    const Eigen::Vector3i c = lat.cell_coords[size_t(stack.back())];
+    stack.pop_back();
+    for (int f = 0; f < 6; ++f) {
+      Eigen::Vector3i y = c;
+      y[f / 2] += f % 2 ? 1 : -1;
+      const int32_t n = lat.cell_at(y.x(), y.y(), y.z());
+      if (n >= 0 && !seen[size_t(n)]) {
+        seen[size_t(n)] = 1;
+        ++reached;
+        stack.push_back(n);
+      }
+    }
+  }
+  EXPECT_EQ(reached, lat.num_cells());
+}

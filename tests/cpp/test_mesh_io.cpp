@@ -3,6 +3,8 @@
 #include <larap/errors.h>
 #include <larap/mesh_io.h>
 
+#include "mesh_io/writers.h"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -234,8 +236,8 @@ TEST_F(MeshIo, ObjVariants) {
   ASSERT_EQ(m.num_vertices(), 4);
   EXPECT_EQ(m.vertices(3, 1), 1);
   EXPECT_EQ(m.vertices(3, 2), 0);
-  EXPECT_EQ(m.face_offsets, (std::vector<int64_t>{0, 3, 6, 10, 13}));
-  EXPECT_EQ(m.face_indices, (std::vector<int64_t>{0, 1, 2, 0, 2, 3, 0, 1, 2, 3, 0, 1, 2}));
+  EXPECT_EQ(m.face_offsets, (std::vector<int64_t>{0, 3, 6, 10, 13, 15}));  // `l 1 2`: a loose edge
+  EXPECT_EQ(m.face_indices, (std::vector<int64_t>{0, 1, 2, 0, 2, 3, 0, 1, 2, 3, 0, 1, 2, 0, 1}));
 }
 
 TEST_F(MeshIo, ObjRelativeIndicesCountVerticesSoFar) {
@@ -514,4 +516,25 @@ TEST(MeshIoShared, PublicMeshesLoad) {
     ++loaded;
   }
   EXPECT_GT(loaded, 0);
+}
+
+// ------------------------------------------------------------------ loose edges (OBJ `l`)
+
+TEST_F(MeshIo, ObjLinesAreLooseEdges) {
+  const PolygonMesh m = larap::parse_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nl 3 4/1 1\nl -1 -2\n", "lines");
+  EXPECT_EQ(m.face_offsets, (std::vector<int64_t>{0, 3, 5, 7, 9}));
+  EXPECT_EQ(m.face_indices, (std::vector<int64_t>{0, 1, 2, 2, 3, 3, 0, 3, 2}));
+  ASSERT_EQ(larap::segments(m).size(), 3u);
+  // Written back as `l` lines, read back the same.
+  const std::string text = larap::io_detail::write_obj(m);
+  EXPECT_NE(text.find("\nl 3 4\n"), std::string::npos);
+  EXPECT_NE(text.find("\nf 1 2 3\n"), std::string::npos);
+  const PolygonMesh back = larap::parse_obj(text, "back");
+  EXPECT_EQ(back.face_offsets, m.face_offsets);
+  EXPECT_EQ(back.face_indices, m.face_indices);
+  const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  expect_parse_error(obj, tri + "l 1\n", "bad:4: line needs at least 2 vertices");
+  expect_parse_error(obj, tri + "l\n", "line without vertices");
+  expect_parse_error(obj, tri + "l 1 x\n", "bad line vertex 'x'");
+  expect_parse_error(obj, tri + "l 1 5\n", "bad:4: face vertex index 5 is out of range");
 }

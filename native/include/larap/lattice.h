@@ -2,8 +2,9 @@
 //
 // Kept cells are (1) every cell a triangle of the mesh overlaps (exact separating-axis
 // triangle/box test, so large triangles and thin parts are never missed), (2) every cell that
-// contains a vertex (loose vertices and point clouds bind too) and (3) every cell inside the
-// solid. Cells entirely outside are deleted.
+// contains a vertex (loose vertices and point clouds bind too) or that a loose edge passes
+// through (mesh.h's segments: a wire stays one piece), and (3) every cell inside the solid.
+// Cells entirely outside are deleted.
 //
 // Cell splitting (virtual node algorithm, docs/method.md): a kept cell that holds more than one
 // connected piece of the solid is kept once per piece (a "copy"); copies of face-adjacent cells
@@ -71,7 +72,7 @@ class Lattice {
   // Copies of one grid cell are consecutive, in grid order (x fastest).
   std::vector<Eigen::Vector3i> cell_coords;   // #C integer coordinates of kept cells (may repeat)
   std::vector<std::array<int32_t, 8>> cell_nodes;  // #C corner node ids, corner c = (c&1, c>>1&1, c>>2)
-  std::vector<uint8_t> cell_kind;             // #C bit 1 surface, 2 inside, 4 vertex
+  std::vector<uint8_t> cell_kind;             // #C bit 1 surface, 2 inside, 4 vertex or loose edge
   // Stiffness of each copy (empty: all 1, the plain lattice). A copy of a split cell carries its
   // piece's share of the cell's material (material voxels / split_resolution^3, at least one
   // voxel layer, 1 / split_resolution): a sliver of a finger that crosses a cell corner is as

@@ -28,4 +28,10 @@ void validate_mesh(const PolygonMesh& mesh);
 // indices. Faces with 1 or 2 distinct vertices contribute no triangle (their vertices still bind).
 std::vector<Eigen::Vector3i> triangulate(const PolygonMesh& mesh);
 
+// The loose edges: every face with exactly 2 distinct vertices (an OBJ `l` element, a Blender
+// edge on no face), as a segment (lower id first). The lattice keeps the cells a segment passes
+// through, so the vertices of a wire mesh (a Skin modifier's skeleton, guide curves) stay
+// connected however long its edges are.
+std::vector<Eigen::Vector2i> segments(const PolygonMesh& mesh);
+
 }  // namespace larap

@@ -1,4 +1,4 @@
-// Wavefront OBJ: the reader (parse_obj: `v` and `f` statements, `\` continuations, relative
+// Wavefront OBJ: the reader (parse_obj: `v`, `f` and `l` statements, `\` continuations, relative
 // and forward indices) and the two writers behind save_mesh: a plain OBJ, and a template OBJ
 // copied line by line with only the `v` positions replaced.
 #include <larap/errors.h>
@@ -55,13 +55,17 @@ PolygonMesh parse_obj(std::string_view data, const std::string& name) {
         xyz.push_back(x);
       }
       // Anything after xyz (w or vertex colours) carries nothing we use.
-    } else if (tok == "f") {
+    } else if (tok == "f" || tok == "l") {
+      // A face, or a polyline (`l`): each of its segments is a face of two vertices, a loose
+      // edge (mesh.h's segments).
+      const bool polyline = tok == "l";
+      const char* what = polyline ? "line" : "face";
       const int64_t nv = static_cast<int64_t>(xyz.size() / 3);
-      size_t count = 0;
+      const size_t first = indices.size();
       while (tk.next(tok)) {
         int64_t i;
-        if (!parse_obj_ref(tok, i)) fail_line(name, line, "bad face vertex " + quote(tok));
-        if (i == 0) fail_line(name, line, "face vertex index 0 (OBJ indices start at 1)");
+        if (!parse_obj_ref(tok, i)) fail_line(name, line, std::string("bad ") + what + " vertex " + quote(tok));
+        if (i == 0) fail_line(name, line, std::string(what) + " vertex index 0 (OBJ indices start at 1)");
         if (i < 0) {
           i += nv;  // relative to the vertices read so far; cannot overflow as nv >= 0
           if (i < 0) fail_line(name, line, "relative index " + quote(tok) + " points before the first vertex");
@@ -70,12 +74,23 @@ PolygonMesh parse_obj(std::string_view data, const std::string& name) {
           if (i >= nv) forward.emplace_back(line, i);
         }
         indices.push_back(i);
-        ++count;
       }
-      if (count == 0) fail_line(name, line, "face without vertices");
-      offsets.push_back(static_cast<int64_t>(indices.size()));
+      const size_t count = indices.size() - first;
+      if (count == 0) fail_line(name, line, std::string(what) + " without vertices");
+      if (!polyline) {
+        offsets.push_back(static_cast<int64_t>(indices.size()));
+      } else {
+        if (count < 2) fail_line(name, line, "line needs at least 2 vertices");
+        const std::vector<int64_t> ids(indices.begin() + int64_t(first), indices.end());
+        indices.resize(first);
+        for (size_t k = 0; k + 1 < ids.size(); ++k) {
+          indices.push_back(ids[k]);
+          indices.push_back(ids[k + 1]);
+          offsets.push_back(static_cast<int64_t>(indices.size()));
+        }
+      }
     }
-    // vt, vn, vp, g, o, s, usemtl, mtllib, l, p and unknown keywords carry no geometry we use.
+    // vt, vn, vp, g, o, s, usemtl, mtllib, p and unknown keywords carry no geometry we use.
   }
   const int64_t nv = static_cast<int64_t>(xyz.size() / 3);
   for (const auto& [at, i] : forward)
@@ -98,7 +113,7 @@ std::string write_obj(const PolygonMesh& mesh) {
     out += '\n';
   }
   for (int64_t f = 0; f < mesh.num_faces(); ++f) {
-    out += 'f';
+    out += mesh.face_offsets[f + 1] - mesh.face_offsets[f] == 2 ? 'l' : 'f';  // a loose edge
     for (int64_t k = mesh.face_offsets[f]; k < mesh.face_offsets[f + 1]; ++k) {
       out += ' ';
       put_int(out, mesh.face_indices[k] + 1);

@@ -64,7 +64,7 @@ struct Measured {
 
 Measured measure(const PolygonMesh& m, double h, int k) {
   const std::vector<Eigen::Vector3i> tris = triangulate(m);
-  const Grid g = voxelize(m, tris, m.vertices.colwise().minCoeff().transpose(),
+  const Grid g = voxelize(m, tris, {}, m.vertices.colwise().minCoeff().transpose(),
                           m.vertices.colwise().maxCoeff().transpose(), h, int64_t(1) << 34);
   const std::vector<int32_t> parts = mesh_parts(m);
   auto run = [&](int64_t limit) {

@@ -63,32 +63,54 @@ def array_hash(a):
 # Topology (read)
 
 def topology_arrays(me):
-    """(loop_start, loop_total, loop vertex ids): Blender's polygons, as int32 arrays."""
+    """(loop_start, loop_total, loop vertex ids, loose edges): Blender's polygons as int32 arrays,
+    and the (k, 2) int32 vertex ids of its edges on no face (a wire mesh, a Skin modifier's
+    skeleton, edges beside faces)."""
     totals = _get(me.polygons, "loop_total", len(me.polygons), np.int32)
     starts = _get(me.polygons, "loop_start", len(me.polygons), np.int32)
     verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
-    return starts, totals, verts
+    return starts, totals, verts, loose_edges(me)
+
+
+def loose_edges(me):
+    """(k, 2) int32 vertex ids of the mesh's loose edges (on no face)."""
+    n = len(me.edges)
+    if n == 0:
+        return np.zeros((0, 2), np.int32)
+    loose = _get(me.edges, "is_loose", n, bool)
+    if not loose.any():
+        return np.zeros((0, 2), np.int32)
+    return _get(me.edges, "vertices", n, np.int32, 2)[loose]
 
 
 def topology_hash(me, arrays=None):
-    starts, totals, verts = arrays or topology_arrays(me)
+    """The polygons' hash, and the loose edges' when there are any (so the hash of a mesh without
+    them is the one recorded before loose edges counted: files bound then need no rebind)."""
+    starts, totals, verts, loose = arrays or topology_arrays(me)
     h = hashlib.blake2b(digest_size=16)
     h.update(np.array([len(me.vertices), len(me.polygons), len(me.loops)], dtype=np.int64).tobytes())
     h.update(totals.tobytes())
     h.update(verts.tobytes())
+    if len(loose):
+        h.update(b"loose edges")
+        h.update(np.ascontiguousarray(loose).tobytes())
     return h.hexdigest()
 
 
 def polygons(me, arrays=None):
     """Blender's polygons as the engine takes them: (vertex ids (L,), offsets (P+1,)), polygon p
     being ids[offsets[p]:offsets[p+1]]. Blender stores each polygon's loops contiguously and in
-    polygon order, so this is its own loop array, handed over without triangulating."""
-    starts, totals, verts = arrays or topology_arrays(me)
+    polygon order, so this is its own loop array, handed over without triangulating. Loose edges
+    follow as faces of two vertices (the engine keeps the cells they pass through)."""
+    starts, totals, verts, loose = arrays or topology_arrays(me)
     offsets = np.zeros(len(totals) + 1, dtype=np.int64)
     np.cumsum(totals, out=offsets[1:])
     if len(starts) and not np.array_equal(starts, offsets[:-1]):  # not in order: gather it
         idx = np.repeat(starts.astype(np.int64) - offsets[:-1], totals) + np.arange(offsets[-1])
         verts = verts[idx]
+    if len(loose):
+        verts = np.concatenate([verts, loose.reshape(-1)])
+        offsets = np.concatenate([offsets, offsets[-1] + 2 * np.arange(1, len(loose) + 1, dtype=np.int64)])
     return verts, offsets
 
 

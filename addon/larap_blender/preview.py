@@ -82,6 +82,9 @@ def blocker(obj):
         return "modifiers after the pose key (%s)" % ", ".join(mods[:3])
     if obj.display_type not in ("SOLID", "TEXTURED"):
         return "object displayed as %s" % obj.display_type.title()
+    rt = runtime(obj)
+    if rt is not None and rt.loose_edges:
+        return "loose edges (the preview draws faces)"
     if not scene_index.in_view_layer(obj, getattr(bpy.context, "view_layer", None)):
         return "not in the current view layer"
     if obj.hide_get() and not showing(obj):

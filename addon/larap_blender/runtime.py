@@ -29,7 +29,8 @@ class Runtime:
         self.deformer = None
         self.pointer = 0
         self.settings_sig = None
-        self.counts = None  # (verts, polys, loops)
+        self.counts = None  # (verts, polys, loops, edges)
+        self.loose_edges = 0  # edges on no face (the preview does not draw them)
         self.topology = ""
         self.rest = None
         self.rest_hash = ""
@@ -281,7 +282,8 @@ def _refresh(obj, key, arrays, topo, rebuild):
         _RUNTIMES[key] = rt
     rt.validated = True
     rt.pointer = obj.as_pointer()
-    rt.counts = (len(me.vertices), len(me.polygons), len(me.loops))
+    rt.counts = _counts(me)
+    rt.loose_edges = len(arrays[3])
     rt.settings_sig = sig
     rt.topology = topo
     rt.rest = rest
@@ -290,6 +292,11 @@ def _refresh(obj, key, arrays, topo, rebuild):
         rt.out = np.empty_like(rest)
     rt.membership_sig = None  # refresh vertex groups on full validation
     return rt
+
+
+def _counts(me):
+    """What a fast validation compares: a change of any of these counts is checked in full."""
+    return len(me.vertices), len(me.polygons), len(me.loops), len(me.edges)
 
 
 def build_runtime(obj):
@@ -310,7 +317,7 @@ def ensure_runtime(obj, validate="full"):
     """
     s = obj.larap
     me = obj.data
-    counts = (len(me.vertices), len(me.polygons), len(me.loops))
+    counts = _counts(me)
     if counts[0] != s.bind_vertex_count:
         raise TopologyChanged("%r changed topology since bind (%d vertices, %d at bind); rebind it (LARAP > Bind)"
                               % (obj.name, counts[0], s.bind_vertex_count))

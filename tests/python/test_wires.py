@@ -103,3 +103,15 @@ def test_obj_lines_load_as_a_wire(tmp_path, figure):
     out = tmp_path / "back.obj"
     larap.save_mesh(str(out), W, G)
     assert sum(line.startswith("l ") for line in out.read_text().splitlines()) == len(F)
+
+
+@pytest.mark.parametrize("weights,levels", [("trilinear", 1), ("bspline", 1), ("trilinear", 3)])
+def test_cpu_and_cuda_agree_on_a_wire(figure, weights, levels):
+    """The raised arm on both devices: the poses within 1e-4 of the diagonal, the energies within
+    1e-3, neither rising (test_cuda.poses_agree); skipped where no GPU is usable."""
+    from test_cuda import poses_agree
+    if "cuda" not in larap.available_devices():
+        pytest.skip("no usable CUDA device here")
+    V, F, limbs = figure
+    groups, T, _, _ = raise_arm(V, limbs)
+    poses_agree(lambda dev: larap.Deformer(V, F, weights=weights, levels=levels, device=dev), groups, T)

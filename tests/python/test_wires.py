@@ -25,16 +25,22 @@ def edge_lengths(X, F):
 
 
 def raise_arm(V, limbs, angle=80.0):
-    """The spine held, the left arm's last two vertices (its hand) turned `angle` degrees up about
-    the shoulder: (groups, transforms, hand ids, shoulder)."""
+    """Held as an artist pins a figure: the spine, the right hand and both feet (each limb's last
+    two vertices) kept where they are, the left hand turned `angle` degrees up about the shoulder:
+    (groups, transforms, the left hand's ids, shoulder). (A limb that nothing holds is a free branch
+    of the junction it leaves: ARAP turns it with the junction, so a free right arm rises with the
+    left, 10% of the figure's height once converged; hold it, as here.)"""
     spine = V[limbs["spine"]]
     shoulder = spine[np.argmin(np.linalg.norm(spine - V[limbs["left_arm"][0]], axis=1))]
     hand = limbs["left_arm"][-2:]
     R = rotation([1, 0, 0], angle)
-    T = np.tile(np.eye(4), (2, 1, 1))
-    T[1, :3, :3] = R
-    T[1, :3, 3] = shoulder - R @ shoulder
-    return [limbs["spine"], hand], T, hand, shoulder
+    turn = np.eye(4)
+    turn[:3, :3] = R
+    turn[:3, 3] = shoulder - R @ shoulder
+    held = [limbs[k][-2:] for k in ("right_arm", "left_leg", "right_leg")]
+    groups = [limbs["spine"], hand] + held
+    T = np.stack([np.eye(4), turn] + [np.eye(4)] * len(held))
+    return groups, T, hand, shoulder
 
 
 def test_a_wire_is_one_lattice_component(figure):
@@ -48,8 +54,9 @@ def test_a_wire_is_one_lattice_component(figure):
 def test_rest_targets_give_rest_pose(figure, weights, device):
     V, F, limbs = figure
     d = larap.Deformer(V, F, weights=weights, device=device)
-    d.set_handle_groups([limbs["spine"], limbs["left_arm"][-2:]])
-    X = d.solve(transforms=np.tile(np.eye(4), (2, 1, 1)), iterations=5)
+    groups, T, _, _ = raise_arm(V, limbs)
+    d.set_handle_groups(groups)
+    X = d.solve(transforms=np.tile(np.eye(4), (len(groups), 1, 1)), iterations=5)
     assert np.abs(X - V).max() <= 1e-6 * diagonal(V)
 
 
@@ -58,10 +65,11 @@ def test_rigid_motion_gives_rigid_pose(figure, weights, device):
     V, F, limbs = figure
     R, t = rotation([1, 2, 3], 60), np.array([1.0, -2.0, 0.5])
     d = larap.Deformer(V, F, weights=weights, device=device)
-    d.set_handle_groups([limbs["spine"], limbs["left_arm"][-2:]])
+    groups, _, _, _ = raise_arm(V, limbs)
+    d.set_handle_groups(groups)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
-    X = d.solve(transforms=np.stack([T, T]), iterations=60)
+    X = d.solve(transforms=np.stack([T] * len(groups)), iterations=60)
     assert np.abs(X - (V @ R.T + t)).max() <= 1e-3 * diagonal(V)
 
 
@@ -69,7 +77,7 @@ def test_rigid_motion_gives_rigid_pose(figure, weights, device):
 def test_raised_arm_bends_without_tearing(figure, weights, device):
     """The hand reaches its target, every edge keeps its length within 10% (the wire is one piece:
     without the edges' cells the arm's middle stayed at rest and its edges stretched 3 to 4
-    times), the other limbs stay within 1% of the figure's size, and the energy never rises."""
+    times), the held limbs stay within 1% of the figure's size, and the energy never rises."""
     V, F, limbs = figure
     groups, T, hand, shoulder = raise_arm(V, limbs)
     d = larap.Deformer(V, F, weights=weights, device=device)
@@ -107,11 +115,14 @@ def test_obj_lines_load_as_a_wire(tmp_path, figure):
 
 @pytest.mark.parametrize("weights,levels", [("trilinear", 1), ("bspline", 1), ("trilinear", 3)])
 def test_cpu_and_cuda_agree_on_a_wire(figure, weights, levels):
-    """The raised arm on both devices: the poses within 1e-4 of the diagonal, the energies within
-    1e-3, neither rising (test_cuda.poses_agree); skipped where no GPU is usable."""
+    """The raised arm on both devices, converged (3,000 flip-flops: a chain one cell thick converges
+    slowly, and after 200 the figure is still 0.25% of its size from its pose, more than the
+    devices' paths may differ): the poses within 1e-4 of the diagonal, the energies within 1e-3,
+    neither rising (test_cuda.poses_agree); skipped where no GPU is usable."""
     from test_cuda import poses_agree
     if "cuda" not in larap.available_devices():
         pytest.skip("no usable CUDA device here")
     V, F, limbs = figure
     groups, T, _, _ = raise_arm(V, limbs)
-    poses_agree(lambda dev: larap.Deformer(V, F, weights=weights, levels=levels, device=dev), groups, T)
+    poses_agree(lambda dev: larap.Deformer(V, F, weights=weights, levels=levels, device=dev), groups, T,
+                iterations=3000)

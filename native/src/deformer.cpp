@@ -80,6 +80,7 @@ struct Deformer::Impl {
   // after set_handles or reset the rest (identity maps, rest rows); unknown after
   // set_lattice_state.
   enum class Last { Unknown, Rest, Maps, Rows } last = Last::Rest;
+  bool at_rest = true;  // the lattice is at rest (construction, reset): the last targets were the rest
   std::vector<Affine34> last_maps;
   std::vector<double> last_rows;
   std::vector<Eigen::Vector4d> group_ball;  // per group: centre and radius of its rest rows
@@ -230,12 +231,15 @@ void Deformer::Impl::set_spec(HandleSpec next) {
     if (handles_set) prepare_handles();
     throw;
   }
-  // New groups: the last targets are their rest. Each group's ball bounds how far a change of
-  // its map moves its rows (held_groups).
-  last = Last::Rest;
-  last_maps.clear();
-  last_rows.clear();
+  // New groups: the last targets are their rest when the lattice is at rest; with a posed lattice
+  // the same number of groups keeps the last maps (a weight or membership changed: each group's
+  // map is still its own), anything else is unknown. Each group's ball bounds how far a change
+  // of its map moves its rows (held_groups).
   const int64_t G = int64_t(spec.group_offsets.size()) - 1;
+  if (at_rest) last = Last::Rest;
+  else if (!(last == Last::Maps && int64_t(last_maps.size()) == G)) last = Last::Unknown;
+  if (last != Last::Maps) last_maps.clear();
+  last_rows.clear();
   group_ball.assign(size_t(std::max<int64_t>(G, 0)), Eigen::Vector4d::Zero());
   for (int64_t g = 0; g < G; ++g) {
     const int64_t a = spec.group_offsets[g], b = spec.group_offsets[g + 1];
@@ -272,6 +276,7 @@ void Deformer::reset() {
   impl_->backend->set_pose(impl_->lattice.rest);
   impl_->hierarchy.reset();
   impl_->last = Impl::Last::Rest;
+  impl_->at_rest = true;
 }
 
 void Deformer::Impl::prepare_handles() {
@@ -392,6 +397,8 @@ bool Deformer::Impl::pose_lattice(const HandleTargets& targets, int iterations, 
   if (spec.vertices.empty()) return false;
   backend->set_targets(targets);
   const std::vector<uint8_t> held = held_groups(targets);
+  last = Last::Unknown;  // until this solve ends (an exception leaves the pose between targets)
+  at_rest = false;
   choose_start(held);
   stats.ms_start = ms_since(t0);
   coarse_to_fine(targets, iterations, held);
@@ -403,8 +410,8 @@ bool Deformer::Impl::pose_lattice(const HandleTargets& targets, int iterations, 
 
 // Per group, 1 when its targets moved less than 1e-7 of the model's size since the last solve
 // (the `still` of choose_start): a group the user kept where it was. Empty when unknown. O(G) for
-// maps (a change of map moves a row at most |dA|_F (|c| + r) + |db| within the group's ball),
-// O(rows) for row targets.
+// maps (a change of map moves a row of the group's rest ball, centre c and radius r, at most
+// |dA c + db| + |dA|_F r), O(rows) for row targets.
 std::vector<uint8_t> Deformer::Impl::held_groups(const HandleTargets& targets) const {
   const double still = 1e-7 * diagonal;
   const int64_t G = int64_t(spec.group_offsets.size()) - 1;
@@ -415,12 +422,12 @@ std::vector<uint8_t> Deformer::Impl::held_groups(const HandleTargets& targets) c
   for (int64_t g = 0; g < G; ++g) {
     if (targets.groups) {
       Affine34 before = Affine34::Zero();
-      before.leftCols<3>().setIdentity();
+      before.leftCols<3>().setIdentity();  // Last::Rest
       if (last == Last::Maps) before = last_maps[size_t(g)];
-      else if (last == Last::Rows) return {};
       const Affine34 d = targets.groups[g] - before;
       const Eigen::Vector4d& ball = group_ball[size_t(g)];
-      held[size_t(g)] = d.leftCols<3>().norm() * (ball.head<3>().norm() + ball[3]) + d.col(3).norm() <= still;
+      const double moved = (d.leftCols<3>() * ball.head<3>() + d.col(3)).norm() + d.leftCols<3>().norm() * ball[3];
+      held[size_t(g)] = moved <= still;
     } else {
       bool kept = true;
       for (int64_t j = spec.group_offsets[g]; kept && j < spec.group_offsets[g + 1]; ++j) {
@@ -526,6 +533,7 @@ void Deformer::set_lattice_state(const std::vector<RowMatrixX3d>& state) {
   d.backend->set_pose(state[0]);
   d.hierarchy.set_poses(std::vector<RowMatrixX3d>(state.begin() + 1, state.end()));
   d.last = Impl::Last::Unknown;  // the targets of this pose are not known
+  d.at_rest = false;
 }
 
 RowMatrixX3d Deformer::lattice_deformed() const {

@@ -74,11 +74,14 @@ void warm_start(Backend& backend, double still, SolveStats& stats, const std::ve
       carry[c].active = false;
       continue;
     }
-    if (c < held.size() && held[c]) continue;  // a held group: no rigid start (warm_start.h)
-    carry[c].active = carried < 0.5 * before;
+    // A held group (warm_start.h): a rigid start only when it is exact, the targets a rigid motion
+    // of the handles (the held rows then lie on its axis and stay where they are).
+    const bool held_here = c < held.size() && held[c];
+    const double exact = now[c].w * still * still;
+    carry[c].active = held_here ? carried <= exact : carried < 0.5 * before;
     any_carry |= carry[c].active;
     const double rested = fit_rigid(rest[c], from_rest[c], unused);
-    from_rest[c].active = rested < std::min(before, carried);
+    from_rest[c].active = rested < std::min(before, carried) && (!held_here || rested <= exact);
     any_rest |= from_rest[c].active;
   }
   if (any_carry) {

@@ -2,11 +2,11 @@
 // motion of that component's handles when it explains most of their move, and the rigidly moved
 // rest pose when the targets are close to a rigid motion of the handles' rest positions and it
 // lowers the energy. A component whose handles did not move is left exactly where it was; parts
-// never jump because handles elsewhere moved. Neither rigid start is tried for a component that
-// holds a handle group the user kept where it was since the last solve (held_groups): a rigid
-// start moves every handle of the component, so it would carry the held group, and every part
-// of the component that no handle holds, away for the iterations to pull back; on thin joints
-// (a wire figure's limbs) they never did (docs/method.md, *Warm start*).
+// never jump because handles elsewhere moved. A component that holds a handle group the user kept
+// where it was since the last solve (held_groups) gets a rigid start only when it is exact (the
+// targets a rigid motion of the handles, the held rows on its axis): otherwise it would carry the
+// held group, and every part of the component that no handle holds, away for the iterations to
+// pull back; on thin joints they never did (docs/method.md, *Warm start*).
 //
 // Everything is computed from per-component moments of the handle rows (Backend::moments), so
 // the cost is O(lattice nodes + components), whatever the number of handle vertices.

@@ -193,6 +193,58 @@ def test_the_start_leaves_a_held_group_where_it_was(tube, device, targets):
     assert np.abs(R - apply(M, V)).max() <= tol(device, 1e-7, 1e-5) * size
 
 
+def test_a_held_group_is_not_carried_when_another_component_is(device):
+    """Two separate tubes: A's base held and its tip turned, B moved rigidly. B's rigid start must
+    not move A (the start alone, iterations=0: A's held base exactly at rest; a first version
+    carried it by A's own fit whenever B was carried, 0.11 of the diagonal)."""
+    A, FA = shapes.tube(length=4.0, radius=0.3, segments=16, rings=32)
+    B, FB = shapes.tube(length=4.0, radius=0.3, segments=16, rings=32)
+    B = B + [0, 2.0, 0]
+    V, F = shapes.concat((A, FA), (B, FB))
+    nA = len(A)
+    x, first = V[:, 0], np.arange(len(V)) < nA
+    groups = [np.flatnonzero((x < 0.5) & first), np.flatnonzero((x > 3.5) & first), np.flatnonzero(~first)]
+    d = larap.Deformer(V, F, cells=1500, device=device)
+    assert d.num_components >= 2
+    d.set_handle_groups(groups)
+    T = [np.eye(4), affine(rotation([0, 0, 1], 90), pivot=(0.0, 0.0, 0.0)),
+         affine(rotation([1, 0, 0], 40), t=(0.5, 0.2, 0.0), pivot=V[~first].mean(0))]
+    X = d.solve(transforms=np.stack(T), iterations=0)
+    assert np.abs(X[groups[0]] - V[groups[0]]).max() <= 1e-9 * diagonal(V)
+    assert np.abs(X[~first] - apply(T[2], V[~first])).max() <= tol(device, 1e-7, 1e-5) * diagonal(V)
+
+
+def test_a_rigid_motion_about_a_handle_vertex_is_exact_at_once(tube, device):
+    """set_handles (one group per vertex): every handle turned 90 degrees about an axis through one
+    of them. That vertex's target equals its position, so it counts as held; the start must still
+    be the rigid motion, which leaves it in place (a first version refused it: 0.11 of the
+    diagonal off after one iteration)."""
+    V, F = tube
+    idx = np.random.default_rng(3).choice(len(V), 40, replace=False)
+    d = larap.Deformer(V, F, cells=800, device=device)
+    d.set_handles(idx)
+    M = affine(rotation([0, 0, 1], 90), pivot=V[idx[0]])
+    X = d.solve(apply(M, V[idx]), iterations=1)
+    assert np.abs(X - apply(M, V)).max() <= tol(device, 1e-7, 1e-5) * diagonal(V)
+
+
+def test_new_weights_keep_a_held_group_held(tube, device):
+    """The add-on sets the groups again when a weight or a vertex group's membership changes: with
+    the lattice posed, the last maps are kept (the same number of groups), so the held base is
+    still held at the next move and the start does not carry it."""
+    V, F = tube
+    groups = ends(V)
+    d = larap.Deformer(V, F, cells=800, device=device)
+    d.set_handle_groups(groups)
+    base = affine(t=(0.0, 0.3, 0.0))  # the base moved once, then kept there
+    turn = affine(rotation([0, 0, 1], 90), pivot=(0.0, 0.0, 0.0))
+    Y = d.solve(transforms=np.stack([base, turn]), iterations=20)
+    d.set_handle_groups(groups, weights=[1.0, 2.0])
+    Z = d.solve(transforms=np.stack([base, affine(rotation([0, 0, 1], 100), pivot=(0.0, 0.0, 0.0))]),
+                iterations=0)
+    assert np.abs(Z[groups[0]] - Y[groups[0]]).max() <= tol(device, 1e-9, 1e-5) * diagonal(V)
+
+
 BAD = [
     ("overlapping groups", dict(groups=[[0, 1, 2], [2, 3]]), ValueError, "vertex 2 is in group 0 and in group 1"),
     ("vertex twice in a group", dict(groups=[[0, 1, 1]]), ValueError, "twice"),

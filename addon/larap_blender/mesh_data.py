@@ -63,36 +63,56 @@ def array_hash(a):
 # Topology (read)
 
 def topology_arrays(me):
-    """(loop_start, loop_total, loop vertex ids, loose edges): Blender's polygons as int32 arrays,
-    and the (k, 2) int32 vertex ids of its edges on no face (a wire mesh, a Skin modifier's
-    skeleton, edges beside faces)."""
+    """(loop_start, loop_total, loop vertex ids, wire edges): Blender's polygons as int32 arrays,
+    and the (k, 2) int32 vertex ids of its wire edges (:func:`wire_edges`)."""
     totals = _get(me.polygons, "loop_total", len(me.polygons), np.int32)
     starts = _get(me.polygons, "loop_start", len(me.polygons), np.int32)
     verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
-    return starts, totals, verts, loose_edges(me)
+    return starts, totals, verts, wire_edges(me, verts)
 
 
-def loose_edges(me):
-    """(k, 2) int32 vertex ids of the mesh's loose edges (on no face)."""
+def wire_edges(me, loop_verts=None):
+    """(k, 2) int32 vertex ids of the edges that are wire: on no face, and neither of their
+    vertices on a face (a wire mesh, a Skin modifier's skeleton, a wire part beside faces). A
+    stray loose edge between faced parts is left out, so it never joins them (it would glue two
+    fingers' lattices). Found from the loops, not from ``MeshEdge.is_loose``: Blender 3.4 keeps
+    that flag stored, and ``Mesh.update()`` does not recompute it (edges added with
+    ``foreach_set`` read not loose)."""
     n = len(me.edges)
     if n == 0:
         return np.zeros((0, 2), np.int32)
-    loose = _get(me.edges, "is_loose", n, bool)
-    if not loose.any():
-        return np.zeros((0, 2), np.int32)
-    return _get(me.edges, "vertices", n, np.int32, 2)[loose]
+    edges = _get(me.edges, "vertices", n, np.int32, 2)
+    if len(me.loops):
+        if loop_verts is None:
+            loop_verts = _get(me.loops, "vertex_index", len(me.loops), np.int32)
+        on_face = np.zeros(len(me.vertices), bool)
+        on_face[loop_verts] = True
+        wire = ~(on_face[edges[:, 0]] | on_face[edges[:, 1]])  # an edge of a face has its vertices on it
+        edges = edges[wire]
+    return np.ascontiguousarray(edges)
+
+
+def loose_edge_count(me):
+    """How many edges are on no face (wire edges and stray ones): the GPU preview, which draws
+    faces, would hide them. One read of the loops' edges (about 40 ms at 4M loops)."""
+    n = len(me.edges)
+    if n == 0 or len(me.loops) == 0:
+        return n
+    used = np.zeros(n, bool)
+    used[_get(me.loops, "edge_index", len(me.loops), np.int32)] = True
+    return int(n - np.count_nonzero(used))
 
 
 def topology_hash(me, arrays=None):
-    """The polygons' hash, and the loose edges' when there are any (so the hash of a mesh without
-    them is the one recorded before loose edges counted: files bound then need no rebind)."""
+    """The polygons' hash, and the wire edges' when there are any (so the hash of a mesh without
+    them is the one recorded before wire edges counted: files bound then need no rebind)."""
     starts, totals, verts, loose = arrays or topology_arrays(me)
     h = hashlib.blake2b(digest_size=16)
     h.update(np.array([len(me.vertices), len(me.polygons), len(me.loops)], dtype=np.int64).tobytes())
     h.update(totals.tobytes())
     h.update(verts.tobytes())
     if len(loose):
-        h.update(b"loose edges")
+        h.update(b"wire edges")
         h.update(np.ascontiguousarray(loose).tobytes())
     return h.hexdigest()
 
@@ -100,7 +120,7 @@ def topology_hash(me, arrays=None):
 def polygons(me, arrays=None):
     """Blender's polygons as the engine takes them: (vertex ids (L,), offsets (P+1,)), polygon p
     being ids[offsets[p]:offsets[p+1]]. Blender stores each polygon's loops contiguously and in
-    polygon order, so this is its own loop array, handed over without triangulating. Loose edges
+    polygon order, so this is its own loop array, handed over without triangulating. Wire edges
     follow as faces of two vertices (the engine keeps the cells they pass through)."""
     starts, totals, verts, loose = arrays or topology_arrays(me)
     offsets = np.zeros(len(totals) + 1, dtype=np.int64)

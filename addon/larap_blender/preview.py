@@ -203,6 +203,8 @@ def show(obj):
     rt = runtime(obj)
     if rt is None or rt.lattice_nodes is None:  # nothing posed to draw: never hide the mesh for nothing
         return False
+    if rt.loose_edges:  # known only once the runtime is validated (the blocker may have run first)
+        return False
     prepare(obj)
     key = obj.larap.runtime_id
     if key in _SHOWN:

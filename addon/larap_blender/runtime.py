@@ -19,7 +19,7 @@ import numpy as np
 
 from . import scene_index
 from .errors import TopologyChanged, engine_errors, require_engine
-from .mesh_data import array_hash, polygons, rest_positions, topology_arrays, topology_hash
+from .mesh_data import array_hash, loose_edge_count, polygons, rest_positions, topology_arrays, topology_hash
 from .props import upgrade_settings
 from .targets import target_signature
 
@@ -30,7 +30,7 @@ class Runtime:
         self.pointer = 0
         self.settings_sig = None
         self.counts = None  # (verts, polys, loops, edges)
-        self.loose_edges = 0  # edges on no face (the preview does not draw them)
+        self.loose_edges = 0  # edges on no face (the GPU preview, which draws faces, steps aside)
         self.topology = ""
         self.rest = None
         self.rest_hash = ""
@@ -283,7 +283,7 @@ def _refresh(obj, key, arrays, topo, rebuild):
     rt.validated = True
     rt.pointer = obj.as_pointer()
     rt.counts = _counts(me)
-    rt.loose_edges = len(arrays[3])
+    rt.loose_edges = loose_edge_count(me)
     rt.settings_sig = sig
     rt.topology = topo
     rt.rest = rest

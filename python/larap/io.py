@@ -33,7 +33,9 @@ def load_mesh(path):
     Returns (vertices, faces):
       vertices: (n, 3) float64 positions.
       faces: (m, k) int64 array of 0-based vertex indices when every face has k vertices (an
-        empty (0, 3) array for a point cloud), otherwise a list of m 1-D int64 arrays.
+        empty (0, 3) array for a point cloud), otherwise a list of m 1-D int64 arrays. An OBJ's
+        polylines (`l`) come as faces of two vertices, one per segment, after the faces read
+        before them (loose edges: docs/method.md), so triangles with lines give a list.
     Raises FileNotFoundError for a missing file, ValueError naming the file and line for malformed
     contents (truncated, lying counts, indices out of range, non-finite coordinates), OSError for
     other read failures.

@@ -20,9 +20,12 @@ def diagonal(V) -> float:
 
 
 def triangles(F) -> np.ndarray:
-    """(t, 3) int64 triangles of polygons F ((m, k) array or list of lists), fan-triangulated."""
+    """(t, 3) int64 triangles of polygons F ((m, k) array or list of lists), fan-triangulated;
+    faces of fewer than 3 vertices (loose edges, points) give none."""
     if isinstance(F, np.ndarray) and F.ndim == 2:
         k = F.shape[1]
+        if k < 3:  # loose edges or points: no triangle
+            return np.zeros((0, 3), np.int64)
         return np.concatenate([F[:, [0, j, j + 1]] for j in range(1, k - 1)]).astype(np.int64)
     tris = [(f[0], f[j], f[j + 1]) for f in F for j in range(1, len(f) - 1)]
     return np.asarray(tris, np.int64).reshape(-1, 3)

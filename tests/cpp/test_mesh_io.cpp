@@ -536,5 +536,8 @@ TEST_F(MeshIo, ObjLinesAreLooseEdges) {
   expect_parse_error(obj, tri + "l 1\n", "bad:4: line needs at least 2 vertices");
   expect_parse_error(obj, tri + "l\n", "line without vertices");
   expect_parse_error(obj, tri + "l 1 x\n", "bad line vertex 'x'");
-  expect_parse_error(obj, tri + "l 1 5\n", "bad:4: face vertex index 5 is out of range");
+  expect_parse_error(obj, tri + "l 1 5\n", "bad:4: line vertex index 5 is out of range");
+  // A face of one repeated vertex pair stays a face when written (`l 3 3` is no line).
+  PolygonMesh twice = larap::parse_obj(tri + "f 3 3\n", "twice");
+  EXPECT_NE(larap::io_detail::write_obj(twice).find("\nf 3 3\n"), std::string::npos);
 }

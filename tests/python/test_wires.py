@@ -9,7 +9,7 @@ from conftest import rotation, tol
 
 import larap
 from larap import shapes
-from larap.quality import diagonal
+from larap.quality import diagonal, triangles
 
 WEIGHTS = ["trilinear", "bspline"]
 
@@ -106,6 +106,7 @@ def test_obj_lines_load_as_a_wire(tmp_path, figure):
                     "".join(f"l {a + 1} {b + 1}\n" for a, b in F))
     W, G = larap.load_mesh(str(path))
     assert np.array_equal(W, V)
+    assert G.shape == (len(F), 2) and triangles(G).shape == (0, 3)  # lines give no triangle
     assert larap.Deformer(W, G).num_components == 1
     # and saved back as lines
     out = tmp_path / "back.obj"

@@ -40,6 +40,7 @@ PolygonMesh parse_obj(std::string_view data, const std::string& name) {
   std::vector<int64_t> offsets{0}, indices;
   // Positive indices past the vertices read so far (legal if the vertex comes later): checked at the end.
   std::vector<std::pair<int64_t, int64_t>> forward;  // (line, 0-based index)
+  std::vector<uint8_t> forward_line;                 // per entry of forward: from an `l` statement
 
   LineReader lines(data, true);
   std::string_view text, tok;
@@ -71,7 +72,10 @@ PolygonMesh parse_obj(std::string_view data, const std::string& name) {
           if (i < 0) fail_line(name, line, "relative index " + quote(tok) + " points before the first vertex");
         } else {
           i -= 1;
-          if (i >= nv) forward.emplace_back(line, i);
+          if (i >= nv) {
+            forward.emplace_back(line, i);
+            forward_line.push_back(polyline);
+          }
         }
         indices.push_back(i);
       }
@@ -93,10 +97,11 @@ PolygonMesh parse_obj(std::string_view data, const std::string& name) {
     // vt, vn, vp, g, o, s, usemtl, mtllib, p and unknown keywords carry no geometry we use.
   }
   const int64_t nv = static_cast<int64_t>(xyz.size() / 3);
-  for (const auto& [at, i] : forward)
-    if (i >= nv)
-      fail_line(name, at, "face vertex index " + std::to_string(i + 1) + " is out of range (the file has " +
-                              std::to_string(nv) + " vertices)");
+  for (size_t k = 0; k < forward.size(); ++k)
+    if (forward[k].second >= nv)
+      fail_line(name, forward[k].first, std::string(forward_line[k] ? "line" : "face") + " vertex index " +
+                                            std::to_string(forward[k].second + 1) + " is out of range (the file has " +
+                                            std::to_string(nv) + " vertices)");
   return finish(xyz, offsets, indices, name);
 }
 
@@ -113,7 +118,9 @@ std::string write_obj(const PolygonMesh& mesh) {
     out += '\n';
   }
   for (int64_t f = 0; f < mesh.num_faces(); ++f) {
-    out += mesh.face_offsets[f + 1] - mesh.face_offsets[f] == 2 ? 'l' : 'f';  // a loose edge
+    const int64_t b = mesh.face_offsets[f];
+    const bool edge = mesh.face_offsets[f + 1] - b == 2 && mesh.face_indices[b] != mesh.face_indices[b + 1];
+    out += edge ? 'l' : 'f';  // a loose edge (`l 3 3` is not a line: kept as the face it was)
     for (int64_t k = mesh.face_offsets[f]; k < mesh.face_offsets[f + 1]; ++k) {
       out += ' ';
       put_int(out, mesh.face_indices[k] + 1);

@@ -329,5 +329,5 @@ def ensure_runtime(obj, validate="full"):
     arrays = topology_arrays(me)
     topo = topology_hash(me, arrays)
     if topo != s.bind_topology:
-        raise TopologyChanged("%r changed topology since bind (faces differ); rebind it (LARAP > Bind)" % obj.name)
+        raise TopologyChanged("%r changed topology since bind (faces or wire edges differ); rebind it (LARAP > Bind)" % obj.name)
     return _refresh(obj, key, arrays, topo, rebuild=False)

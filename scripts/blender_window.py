@@ -82,3 +82,36 @@ def frame_view(obj):
     r3d.view_rotation = Euler((math.radians(72), 0.0, math.radians(-35))).to_quaternion()
     r3d.view_location = obj.matrix_world.translation + Vector((0.15, 0.0, 0.0))
     r3d.view_distance = 6.5
+
+
+def screenshot(out_dir, name):
+    """The whole window into out_dir/name (a PNG); prints where."""
+    import os
+    path = os.path.join(out_dir, name)
+    with override():
+        bpy.ops.screen.screenshot(filepath=path)
+    print("wrote", path)
+
+
+def run_steps(steps, first_interval=1.0):
+    """Runs `steps` (callables returning the seconds to wait before the next) one per timer tick,
+    so that the window redraws between them; quits Blender after the last, or at an exception
+    (printed)."""
+    steps = list(steps)
+
+    def tick():
+        step = steps.pop(0)
+        try:
+            delay = step()
+        except Exception:
+            import traceback
+            traceback.print_exc()
+            bpy.ops.wm.quit_blender()
+            return None
+        if not steps:
+            bpy.ops.wm.quit_blender()
+            return None
+        return delay
+
+    bpy.app.timers.register(tick, first_interval=first_interval)
+

@@ -18,7 +18,7 @@ ROOT = os.path.dirname(HERE)
 for p in (HERE, os.path.join(ROOT, "addon"), os.path.join(ROOT, "python")):
     sys.path.insert(0, p)
 
-from blender_window import frame_view, override, posed_suzanne, show_larap_tab, view3d  # noqa: E402
+from blender_window import frame_view, override, posed_suzanne, run_steps, screenshot, show_larap_tab, view3d  # noqa: E402
 
 OUT = os.path.abspath(sys.argv[sys.argv.index("--") + 1]) if "--" in sys.argv else "/tmp/larap-checks"
 os.makedirs(OUT, exist_ok=True)
@@ -26,10 +26,7 @@ STATE = {}
 
 
 def shot(name):
-    path = os.path.join(OUT, name)
-    with override():
-        bpy.ops.screen.screenshot(filepath=path)
-    print("wrote", path)
+    screenshot(OUT, name)
 
 
 def window_xy(world):
@@ -140,24 +137,11 @@ def step_shoot_undo():
 
 def step_shoot_undone():
     shot("overlay-after-undo.png")
-    bpy.ops.wm.quit_blender()
-    return None
+    return 0.5
 
 
 STEPS = [step_panel_empty, step_shoot_panel, step_pose_invoke, step_pose_hover, step_shoot_pose, step_shoot_miss,
          step_undo, step_redraw, step_shoot_undo, step_shoot_undone]
-
-
-def run():
-    step = STEPS.pop(0)
-    try:
-        delay = step()
-    except Exception:
-        import traceback
-        traceback.print_exc()
-        bpy.ops.wm.quit_blender()
-        return None
-    return delay if STEPS else None
 
 
 def start():
@@ -165,7 +149,7 @@ def start():
     STATE["obj"], STATE["name"] = obj, obj.name
     show_larap_tab()
     frame_view(obj)
-    bpy.app.timers.register(run, first_interval=2.0)
+    run_steps(STEPS, first_interval=2.0)
     return None
 
 

@@ -18,7 +18,7 @@ ROOT = os.path.dirname(HERE)
 for p in (HERE, os.path.join(ROOT, "addon"), os.path.join(ROOT, "python")):
     sys.path.insert(0, p)
 
-from blender_window import override, show_larap_tab, view3d  # noqa: E402
+from blender_window import override, run_steps, screenshot, show_larap_tab, view3d  # noqa: E402
 
 OUT = os.path.abspath(sys.argv[sys.argv.index("--") + 1]) if "--" in sys.argv else "/tmp/larap-checks"
 os.makedirs(OUT, exist_ok=True)
@@ -26,10 +26,7 @@ STATE = {}
 
 
 def shot(name):
-    path = os.path.join(OUT, name)
-    with override():
-        bpy.ops.screen.screenshot(filepath=path)
-    print("wrote", path)
+    screenshot(OUT, name)
 
 
 def stretch(obj):
@@ -94,20 +91,5 @@ def raise_arm():
     return 1.5
 
 
-STEPS = [build, lambda: (shot("skin-wire-rest.png"), 0.5)[1], raise_arm,
-         lambda: (shot("skin-wire-raised.png"), 0.5)[1], lambda: bpy.ops.wm.quit_blender()]
-
-
-def run():
-    step = STEPS.pop(0)
-    try:
-        delay = step()
-    except Exception:
-        import traceback
-        traceback.print_exc()
-        bpy.ops.wm.quit_blender()
-        return None
-    return delay if STEPS else None
-
-
-bpy.app.timers.register(run, first_interval=1.0)
+run_steps([build, lambda: (shot("skin-wire-rest.png"), 0.5)[1], raise_arm,
+           lambda: (shot("skin-wire-raised.png"), 0.5)[1]])

@@ -77,8 +77,9 @@ struct Deformer::Impl {
   std::vector<uint8_t> fine_anchored;
   std::vector<std::array<int32_t, 2>> fine_group_components;  // (group, component) of the rows
   // The last solve's targets, to tell the groups the user kept where they were (warm_start.h):
-  // after set_handles or reset the rest (identity maps, rest rows); unknown after
-  // set_lattice_state.
+  // the rest (identity maps, rest rows) while the lattice is at rest (construction, reset); the
+  // last maps kept by a new handle set of as many groups; unknown after set_lattice_state, after
+  // a solve that threw, or a new handle set otherwise (set_spec).
   enum class Last { Unknown, Rest, Maps, Rows } last = Last::Rest;
   bool at_rest = true;  // the lattice is at rest (construction, reset): the last targets were the rest
   std::vector<Affine34> last_maps;

@@ -45,6 +45,28 @@ void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes) {
   }
 }
 
+// The cells [c0, c1] along axis k that the interval [lo, hi] (grid units) touches, a ten-millionth
+// of a cell to spare each side, clamped to the grid.
+static void cell_span(const Grid& g, double lo, double hi, int k, int& c0, int& c1) {
+  c0 = std::max(0, int(std::floor(lo - 1e-7)));
+  c1 = std::min(g.dims[k] - 1, int(std::floor(hi + 1e-7)));
+}
+
+// Sets `bit` on the cells of the block [c0, c1] whose box `overlaps(centre)` says a primitive
+// overlaps; cells that have it already are not tested again. Safe from several threads.
+template <class Overlaps>
+static void mark_overlapped(Grid& g, const Eigen::Vector3i& c0, const Eigen::Vector3i& c1, uint8_t bit,
+                            const Overlaps& overlaps) {
+  for (int z = c0.z(); z <= c1.z(); ++z)
+    for (int y = c0.y(); y <= c1.y(); ++y)
+      for (int x = c0.x(); x <= c1.x(); ++x) {
+        const int64_t id = g.index(x, y, z);
+        if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & bit) continue;
+        if (overlaps(g.origin + g.h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5)))
+          __atomic_fetch_or(&g.marks[id], bit, __ATOMIC_RELAXED);
+      }
+}
+
 // Marks the cells every triangle overlaps (exact separating-axis test).
 static void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris) {
   const double h = g.h;
@@ -54,20 +76,11 @@ static void mark_surface(Grid& g, const RowMatrixX3d& V, const std::vector<Eigen
     const Eigen::Vector3d a = V.row(tris[t][0]), b = V.row(tris[t][1]), c = V.row(tris[t][2]);
     const Eigen::Vector3d lo = a.cwiseMin(b).cwiseMin(c), hi = a.cwiseMax(b).cwiseMax(c);
     Eigen::Vector3i c0, c1;
-    for (int k = 0; k < 3; ++k) {
-      c0[k] = std::max(0, int(std::floor((lo[k] - g.origin[k]) / h - 1e-7)));
-      c1[k] = std::min(g.dims[k] - 1, int(std::floor((hi[k] - g.origin[k]) / h + 1e-7)));
-    }
-    for (int z = c0.z(); z <= c1.z(); ++z)
-      for (int y = c0.y(); y <= c1.y(); ++y)
-        for (int x = c0.x(); x <= c1.x(); ++x) {
-          const int64_t id = g.index(x, y, z);
-          if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & kSurface) continue;
-          const Eigen::Vector3d center = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
-          if (geometry::triangle_box_overlap(center, half, a, b, c)) {
-            __atomic_fetch_or(&g.marks[id], uint8_t(kSurface), __ATOMIC_RELAXED);
-          }
-        }
+    for (int k = 0; k < 3; ++k)
+      cell_span(g, (lo[k] - g.origin[k]) / h, (hi[k] - g.origin[k]) / h, k, c0[k], c1[k]);
+    mark_overlapped(g, c0, c1, kSurface, [&](const Eigen::Vector3d& centre) {
+      return geometry::triangle_box_overlap(centre, half, a, b, c);
+    });
   }, 2048);
 }
 
@@ -84,12 +97,8 @@ static void mark_segments(Grid& g, const RowMatrixX3d& V, const std::vector<Eige
     const Eigen::Vector3d d = pb - pa;
     int axis = 0;
     d.cwiseAbs().maxCoeff(&axis);
-    auto cell_range = [&](double lo, double hi, int k, int& c0, int& c1) {
-      c0 = std::max(0, int(std::floor(lo - 1e-7)));
-      c1 = std::min(g.dims[k] - 1, int(std::floor(hi + 1e-7)));
-    };
     int s0, s1;
-    cell_range(std::min(pa[axis], pb[axis]), std::max(pa[axis], pb[axis]), axis, s0, s1);
+    cell_span(g, std::min(pa[axis], pb[axis]), std::max(pa[axis], pb[axis]), axis, s0, s1);
     for (int slab = s0; slab <= s1; ++slab) {
       // The part of the segment within this slab (a little wider), its box on the other axes.
       double t0 = 0.0, t1 = 1.0;
@@ -101,17 +110,11 @@ static void mark_segments(Grid& g, const RowMatrixX3d& V, const std::vector<Eige
       }
       const Eigen::Vector3d q0 = pa + t0 * d, q1 = pa + t1 * d;
       Eigen::Vector3i c0, c1;
-      for (int k = 0; k < 3; ++k) cell_range(std::min(q0[k], q1[k]), std::max(q0[k], q1[k]), k, c0[k], c1[k]);
+      for (int k = 0; k < 3; ++k) cell_span(g, std::min(q0[k], q1[k]), std::max(q0[k], q1[k]), k, c0[k], c1[k]);
       c0[axis] = c1[axis] = slab;
-      for (int z = c0.z(); z <= c1.z(); ++z)
-        for (int y = c0.y(); y <= c1.y(); ++y)
-          for (int x = c0.x(); x <= c1.x(); ++x) {
-            const int64_t id = g.index(x, y, z);
-            if (__atomic_load_n(&g.marks[id], __ATOMIC_RELAXED) & kVertex) continue;
-            const Eigen::Vector3d centre = g.origin + h * Eigen::Vector3d(x + 0.5, y + 0.5, z + 0.5);
-            if (geometry::segment_box_overlap(centre, half, a, b))
-              __atomic_fetch_or(&g.marks[id], uint8_t(kVertex), __ATOMIC_RELAXED);
-          }
+      mark_overlapped(g, c0, c1, kVertex, [&](const Eigen::Vector3d& centre) {
+        return geometry::segment_box_overlap(centre, half, a, b);
+      });
     }
   }, 2048);
 }

@@ -11,6 +11,7 @@
 #include <cuda_runtime.h>
 #include <larap/errors.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 #include <mutex>
@@ -18,6 +19,7 @@
 #include <vector>
 
 #include "flip_flop.h"
+#include "node_cells.h"
 
 namespace larap {
 
@@ -37,8 +39,8 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
     nbr_host_.assign(size_t(6) * n_, 0);
     for (int i = 0; i < n_; ++i)
       for (int d = 0; d < 6; ++d) nbr_host_[size_t(d) * n_ + i] = i;
-    // Edge weights only where the lattice has them (split cells); else every edge weighs 1.
-    const bool weighted = lattice.weighted();
+    // Edge weights (Lattice::adj_weight: half the sum of cell weights around each edge).
+    const bool weighted = !lattice.adj_weight.empty();
     std::vector<float> slot_w(weighted ? size_t(6) * n_ : 0, 1.f), extra_w;
     std::vector<int> xoff(size_t(n_) + 1, 0), extra;
     for (int i = 0; i < n_; ++i) {
@@ -68,6 +70,25 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
     }
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // the host tables may go
   }
+  {  // cell copies: corners, weights, and per node the copies it is a corner of (node_cells.h)
+    const int ncell = int(lattice.num_cells());
+    std::vector<int> corners(size_t(8) * ncell);
+    for (int c = 0; c < ncell; ++c)
+      for (int q = 0; q < 8; ++q) corners[size_t(q) * ncell + c] = lattice.cell_nodes[size_t(c)][size_t(q)];
+    sys_.ncell = ncell;
+    sys_.cell_nodes = cell_nodes_.upload(corners.data(), corners.size(), stream_);
+    if (!lattice.cell_weight.empty()) {
+      std::vector<float> w(lattice.cell_weight.begin(), lattice.cell_weight.end());
+      sys_.cell_w = cell_w_.upload(w.data(), w.size(), stream_);
+    }
+    const NodeCells t = node_cells(lattice);
+    std::vector<float4> s(t.s.size());
+    for (size_t k = 0; k < s.size(); ++k) s[k] = make_float4(float(t.s[k][0]), float(t.s[k][1]), float(t.s[k][2]), 0.f);
+    sys_.nc_off = nc_off_.upload(t.offsets.data(), t.offsets.size(), stream_);
+    sys_.nc_cell = nc_cell_.upload(t.cell.data(), t.cell.size(), stream_);
+    sys_.nc_s = nc_s_.upload(s.data(), s.size(), stream_);
+    LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // the host tables may go
+  }
   {  // the stencil shell's weights (Lattice::fill_shell)
     std::vector<float> w(lattice.shell_weights.size());
     for (size_t e = 0; e < w.size(); ++e) w[e] = float(lattice.shell_weights[e]);
@@ -85,14 +106,14 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
   sys_.s[0] = s_[0].reserve(n_);
   sys_.s[1] = s_[1].reserve(n_);
   sys_.x_tmp = xtmp_.reserve(n_);
-  sys_.rot = rot_.reserve(size_t(9) * n_);
+  sys_.rot = rot_.reserve(size_t(9) * std::max(1, sys_.ncell));
   disp_.reserve(n_all_);
   sys_.iter = iter_.reserve(1);
   configure();
   LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.p, 0, sizeof(float4) * n_, stream_));
-  std::vector<float> eye(static_cast<size_t>(9 * n_), 0.f);
-  for (int i = 0; i < n_; ++i)
-    eye[0 * size_t(n_) + i] = eye[4 * size_t(n_) + i] = eye[8 * size_t(n_) + i] = 1.f;
+  const size_t nc = size_t(std::max(1, sys_.ncell));
+  std::vector<float> eye(9 * nc, 0.f);
+  for (size_t c = 0; c < nc; ++c) eye[0 * nc + c] = eye[4 * nc + c] = eye[8 * nc + c] = 1.f;
   LARAP_CUDA_CHECK(
       cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float), cudaMemcpyHostToDevice, stream_));
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));

@@ -170,6 +170,9 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<int> nbx_off_, nbx_, shell_off_, shell_ids_, a_off_, a_col_, iter_;
   cuda::DeviceBuffer<float> nbw_, nbxw_;  // edge weights of the slots and extras (weighted lattices)
   cuda::DeviceBuffer<float> shell_w_;
+  cuda::DeviceBuffer<int> cell_nodes_, nc_off_, nc_cell_;  // cell copies (system.h)
+  cuda::DeviceBuffer<float> cell_w_;
+  cuda::DeviceBuffer<float4> nc_s_;
   cuda::DeviceBuffer<float> a_val_, minv_, rot_, coef_;
   cuda::DeviceBuffer<uint8_t> anch_;
   cuda::DeviceBuffer<double> dots_, energy_;

@@ -1,5 +1,5 @@
 // Kernels of the flip-flop's rotation and right-hand-side stages, and the small per-node
-// kernels (see flip_flop.h; per-node maths in flip_flop.cuh and node_terms.h).
+// kernels (see flip_flop.h; the maths in flip_flop.cuh and cell_terms.h).
 #include "flip_flop.cuh"
 #include "flip_flop.h"
 
@@ -8,14 +8,11 @@ namespace cuda {
 namespace {
 
 __global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
-  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  const int k = blockIdx.x * blockDim.x + threadIdx.x;
   int e_slot = slot;
   if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
   double v[2] = {0.0, 0.0};
-  if (i < s.n) {
-    v[0] = rot_node(s, i, write_rot, e_slot >= 0);
-    if (e_slot >= 0) v[1] = handle_energy(s, i);
-  }
+  rotation_item(s, k, write_rot, e_slot >= 0, v);
   if (e_slot >= 0) block_add<2>(v, s.energy + 2 * e_slot);
 }
 
@@ -62,8 +59,9 @@ __global__ void probe_kernel() {}
 }  // namespace
 
 void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st) {
-  if (s.n == 0) return;
-  rotations_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, write_rot, slot);
+  const int items = s.ncell > s.n ? s.ncell : s.n;
+  if (items == 0) return;
+  rotations_kernel<<<blocks_for(items), kBlock, 0, st>>>(s, write_rot, slot);
 }
 
 void launch_rhs(const System& s, bool residual, cudaStream_t st) {

@@ -1,13 +1,13 @@
-// Per-node device functions of one flip-flop (rotations with the energy, handle energy, the
-// right-hand side), shared by the separate kernels (flip_flop.cu) and the fused cooperative
-// kernel (solvers.cu). The arithmetic is node_terms.h's, the same as the CPU backend's; here
-// only the access to the device layout: the fixed 6-slot neighbour table (a missing neighbour is
-// the node itself) plus the short list of extra neighbours of split cells (system.h), and
-// rotations as SoA (rot[k * n + i]). Every per-node sum is linear in the edges, so the extra
-// edges are a second pass with their own accessor, taken only by nodes that have them.
+// Device functions of one flip-flop (per cell copy: rotation with the energy; per node: anchor
+// and handle energy, the right-hand side, the starting residual), shared by the separate kernels
+// (flip_flop.cu) and the fused cooperative kernel (solvers.cu). The arithmetic is cell_terms.h's,
+// the same as the CPU backend's; here only the access to the device layout: corners and
+// rotations as SoA over the copies (system.h), the per-node list of copies for the right-hand
+// side, and for the Laplacian the fixed 6-slot neighbour table (a missing neighbour is the node
+// itself) plus the short list of extra neighbours of split cells.
 #pragma once
+#include "cell_terms.h"
 #include "device_vec.cuh"
-#include "node_terms.h"
 #include "rotation.cuh"
 
 namespace larap {
@@ -34,13 +34,6 @@ struct SlotEdges {
     dp[0] = p.x, dp[1] = p.y, dp[2] = p.z;
     dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
   }
-  __device__ __forceinline__ void rest_edge(int k, float (&dc)[3], float (&Rj)[9]) const {
-    const int j = js[k];
-    const float4 c = ci - s.rest[j];
-    dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
-#pragma unroll
-    for (int q = 0; q < 9; ++q) Rj[q] = s.rot[q * s.n + j];
-  }
 };
 
 // Node i's extra neighbours (split cells: more than one neighbour in a direction), the same
@@ -59,42 +52,52 @@ struct ExtraEdges {
     dp[0] = p.x, dp[1] = p.y, dp[2] = p.z;
     dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
   }
-  __device__ __forceinline__ void rest_edge(int k, float (&dc)[3], float (&Rj)[9]) const {
-    const int j = __ldg(s.nbx + k0 + k);
-    const float4 c = ci - s.rest[j];
-    dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
-    for (int q = 0; q < 9; ++q) Rj[q] = s.rot[q * s.n + j];
+};
+
+// Cell copy c's corners, as cell_terms.h's Corners accessor.
+struct CellCorners {
+  const System& s;
+  int ids[8];
+  __device__ __forceinline__ CellCorners(const System& sys, int c) : s(sys) {
+#pragma unroll
+    for (int q = 0; q < 8; ++q) ids[q] = __ldg(sys.cell_nodes + q * sys.ncell + c);
+  }
+  __device__ __forceinline__ void pose(int q, float (&p)[3]) const {
+    const float4 v = s.x[ids[q]];
+    p[0] = v.x, p[1] = v.y, p[2] = v.z;
+  }
+  __device__ __forceinline__ void rest(int q, float (&c)[3]) const {
+    const float4 v = s.rest[ids[q]];
+    c[0] = v.x, c[1] = v.y, c[2] = v.z;
   }
 };
 
-// Node i: new rotation (write_rot) and, when want_e, its energy term with the old rotations.
-__device__ __forceinline__ double rot_node(const System& s, int i, bool write_rot, bool want_e) {
-  const SlotEdges edges(s, i);
+// Cell copy c: new rotation (write_rot) and, when want_e, its energy term g w_c e_c with the old
+// rotation.
+__device__ __forceinline__ double rot_cell(const System& s, int c, bool write_rot, bool want_e) {
+  const CellCorners corners(s, c);
   float Ro[9];
   if (want_e)
 #pragma unroll
-    for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.n + i];
+    for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.ncell + c];
   float S[9];
-  float arap = node_covariance(edges, want_e, Ro, S);
-  const ExtraEdges extra(s, i, edges.pi, edges.ci);
-  if (extra.size() > 0) {
-    float S2[9];
-    arap += node_covariance(extra, want_e, Ro, S2);
-#pragma unroll
-    for (int k = 0; k < 9; ++k) S[k] += S2[k];
-  }
+  const float arap = cell_covariance(corners, want_e, Ro, S);
   double e = 0.0;
-  if (want_e) {
-    const float4 d = edges.pi - edges.ci;
-    e = node_energy<double>(s.g, arap, s.anchored[i] != 0, s.a, dot3(d, d));
-  }
+  if (want_e) e = double(s.g) * double(s.cell_w ? __ldg(s.cell_w + c) : 1.f) * double(arap);
   if (write_rot) {
     float R[9];
     cuda_math::best_rotation_f(S, R);
 #pragma unroll
-    for (int k = 0; k < 9; ++k) s.rot[k * s.n + i] = R[k];
+    for (int k = 0; k < 9; ++k) s.rot[k * s.ncell + c] = R[k];
   }
   return e;
+}
+
+// Node i's anchor term a |x_i - c_i|^2 (0 where it is not anchored).
+__device__ __forceinline__ double anchor_energy(const System& s, int i) {
+  if (!s.anchored[i]) return 0.0;
+  const float4 d = s.x[i] - s.rest[i];
+  return double(s.a) * double(dot3(d, d));
 }
 
 // Node i's share of the handle term without K: c_i . ((M c)_i - 2 H_i), in double (system.h).
@@ -115,29 +118,38 @@ __device__ __forceinline__ double handle_energy(const System& s, int i) {
   return double(xi.x) * (mx - 2.0 * h[0]) + double(xi.y) * (my - 2.0 * h[1]) + double(xi.z) * (mz - 2.0 * h[2]);
 }
 
-// The ARAP part of row i of the right-hand side, g sum_j w_ij (R_i + R_j)(c_i - c_j), over the slots
-// and the extra neighbours.
-__device__ __forceinline__ float4 arap_rhs_at(const System& s, const SlotEdges& edges, int i) {
-  float Ri[9];
-#pragma unroll
-  for (int k = 0; k < 9; ++k) Ri[k] = s.rot[k * s.n + i];
-  float arap[3];
-  node_rhs(edges, s.g, Ri, arap);
-  float4 b = f4(arap[0], arap[1], arap[2]);
-  const ExtraEdges extra(s, i, edges.pi, edges.ci);
-  if (extra.size() > 0) {
-    node_rhs(extra, s.g, Ri, arap);
-    b = b + f4(arap[0], arap[1], arap[2]);
+// The rotation stage's work item k: cell copy k's rotation and energy, node k's anchor and handle
+// energy (v[0]: ARAP and anchors, v[1]: the handle term without K), over k < max(ncell, n).
+__device__ __forceinline__ void rotation_item(const System& s, int k, bool write_rot, bool want_e, double (&v)[2]) {
+  if (k < s.ncell) v[0] += rot_cell(s, k, write_rot, want_e);
+  if (want_e && k < s.n) {
+    v[0] += anchor_energy(s, k);
+    v[1] += handle_energy(s, k);
   }
-  return b;
 }
 
-// Row i of the right-hand side: g sum_j w_ij (R_i + R_j)(c_i - c_j) + H_i + a c_i [anchored]
+// The ARAP part of row i of the right-hand side, g sum_(c, q) w_c R_c s_cq over the copies node i
+// is a corner of (cell_terms.h, node_cells.h).
+__device__ __forceinline__ float4 arap_rhs_at(const System& s, int i) {
+  float acc[3] = {0.f, 0.f, 0.f};
+  const int k1 = __ldg(s.nc_off + i + 1);
+  for (int k = __ldg(s.nc_off + i); k < k1; ++k) {
+    const int c = __ldg(s.nc_cell + k);
+    const float4 sv = s.nc_s[k];
+    const float sk[3] = {sv.x, sv.y, sv.z};
+    float R[9];
+#pragma unroll
+    for (int q = 0; q < 9; ++q) R[q] = s.rot[q * s.ncell + c];
+    cell_rhs_add(R, sk, acc);
+  }
+  return s.g * f4(acc[0], acc[1], acc[2]);
+}
+
+// Row i of the right-hand side: g sum_(c, q) w_c R_c s_cq + H_i + a c_i [anchored]
 // (H = B^T alpha t, centred: handle_system.h). For the experiments' solvers, which need b itself.
 __device__ __forceinline__ float4 rhs_at(const System& s, int i) {
-  const SlotEdges edges(s, i);
-  float4 b = arap_rhs_at(s, edges, i) + s.h[i];
-  if (s.anchored[i]) b = b + s.a * edges.ci;
+  float4 b = arap_rhs_at(s, i) + s.h[i];
+  if (s.anchored[i]) b = b + s.a * s.rest[i];
   return b;
 }
 
@@ -150,14 +162,14 @@ __device__ __forceinline__ float4 float_residual_at(const System& s, int i) {
 
 // Row i of the global step's starting residual r = b - A x, A = 2 g L + M + a I_anchored, formed
 // so that nothing large cancels in float:
-//   r_i = g sum_j w_ij [(R_i + R_j)(c_i - c_j) - 2 (x_i - x_j)] + a (c_i - x_i) [anchored]
+//   r_i = g [sum_(c, q) w_c R_c s_cq - 2 sum_j w_ij (x_i - x_j)] + a (c_i - x_i) [anchored]
 //       + (H_i - (M x)_i)  (in double: the handle term; system.h)
 // The float terms are edge differences (their rounding scales with the cell size, not with the
 // distance from the frame's origin); the handle part is exact up to the rounding of x itself.
 __device__ __forceinline__ float4 residual_at(const System& s, int i) {
   if (!s.exact_residual) return float_residual_at(s, i);
   const SlotEdges edges(s, i);
-  float4 r = arap_rhs_at(s, edges, i);
+  float4 r = arap_rhs_at(s, i);
   float4 lap = f4(0, 0, 0);  // sum_j w_ij (x_i - x_j)
 #pragma unroll
   for (int d = 0; d < 6; ++d) lap = lap + edges.weight(d) * (edges.pi - s.x[edges.js[d]]);

@@ -204,10 +204,8 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
     {  // rotations + energy of the previous flip-flop (ARAP and anchors, handle term)
       const bool want_e = it > 0;
       double v[2] = {0.0, 0.0};
-      for (int i = tid; i < s.n; i += stride) {
-        v[0] += rot_node(s, i, true, want_e);
-        if (want_e) v[1] += handle_energy(s, i);
-      }
+      const int items = s.ncell > s.n ? s.ncell : s.n;
+      for (int k = tid; k < items; k += stride) rotation_item(s, k, true, want_e, v);
       if (want_e) block_add<2>(v, s.energy + 2 * (it - 1));
     }
     grid.sync();

@@ -70,7 +70,16 @@ struct System {
   float4* w[2] = {nullptr, nullptr};  // A u
   float4* s[2] = {nullptr, nullptr};  // A p
   float4* x_tmp = nullptr;            // Chebyshev / Jacobi: ping-pong partner of x
-  float* rot = nullptr;               // 9 * n, SoA: rot[k * n + i]
+  float* rot = nullptr;               // 9 * ncell, SoA: rot[k * ncell + c], one per cell copy
+  // Cell copies (cell_terms.h): corners cell_nodes[q * ncell + c] (real nodes), weights cell_w
+  // (null: all 1); per node the copies it is a corner of, nc_off/nc_cell (CSR over n, ascending
+  // copies), with w_c times the sum of that corner's 3 rest edges, nc_s (node_cells.h).
+  int ncell = 0;
+  const int* cell_nodes = nullptr;
+  const float* cell_w = nullptr;
+  const int* nc_off = nullptr;
+  const int* nc_cell = nullptr;
+  const float4* nc_s = nullptr;
   // Scalars.
   double* dots = nullptr;        // (inner + 1) * 6
   float* coef = nullptr;         // (inner + 2) * 8

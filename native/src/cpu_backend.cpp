@@ -1,6 +1,6 @@
-// CPU backend: parallel loops over nodes for rotations, right-hand side and energy (parallel.h;
-// the per-node maths is node_terms.h's, shared with the CUDA kernels), CHOLMOD (simplicial
-// Cholesky) for the global step, factorised once per handle set.
+// CPU backend: parallel loops over cell copies for rotations and energy and over nodes for the
+// right-hand side (parallel.h; the maths is cell_terms.h's, shared with the CUDA kernels), CHOLMOD
+// (simplicial Cholesky) for the global step, factorised once per handle set.
 #include <larap/errors.h>
 
 #ifdef LARAP_WITH_CHOLMOD
@@ -12,7 +12,8 @@
 #include <chrono>
 
 #include "backend.h"
-#include "node_terms.h"
+#include "cell_terms.h"
+#include "node_cells.h"
 #include "parallel.h"
 #include "rigid_fit.h"
 
@@ -33,31 +34,19 @@ double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-// Row-major, so that data() is the 9 entries node_terms.h reads.
+// Row-major, so that data() is the 9 entries cell_terms.h reads.
 using Rotation = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
 
-// Node i's lattice edges (CSR adjacency), as node_terms.h's Edges accessor.
-struct CsrEdges {
+// Cell copy c's corners, as cell_terms.h's Corners accessor.
+struct CellCorners {
   const double* P;  // pose, #N by 3 row-major
   const double* C;  // rest
-  const Rotation* R;
-  const int32_t* adj;
-  const double* w;  // adj_weight, or null: every edge weighs 1
-  int64_t i;
-  int32_t begin, end;
-  int size() const { return end - begin; }
-  double weight(int k) const { return w ? w[begin + k] : 1.0; }
-  void edge(int k, double (&dp)[3], double (&dc)[3]) const {
-    const int64_t j = adj[begin + k];
-    for (int a = 0; a < 3; ++a) {
-      dp[a] = P[3 * i + a] - P[3 * j + a];
-      dc[a] = C[3 * i + a] - C[3 * j + a];
-    }
+  const std::array<int32_t, 8>& ids;
+  void pose(int q, double (&p)[3]) const {
+    for (int a = 0; a < 3; ++a) p[a] = P[3 * int64_t(ids[size_t(q)]) + a];
   }
-  void rest_edge(int k, double (&dc)[3], double (&Rj)[9]) const {
-    const int64_t j = adj[begin + k];
-    for (int a = 0; a < 3; ++a) dc[a] = C[3 * i + a] - C[3 * j + a];
-    for (int q = 0; q < 9; ++q) Rj[q] = R[j].data()[q];
+  void rest(int q, double (&c)[3]) const {
+    for (int a = 0; a < 3; ++a) c[a] = C[3 * int64_t(ids[size_t(q)]) + a];
   }
 };
 
@@ -80,8 +69,8 @@ class CpuBackend final : public Backend {
  public:
   CpuBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
       : lat_(lattice), V_(vertices), nr_(lattice.num_real_nodes()), pose_(lattice.rest),
-        R_(size_t(lattice.num_real_nodes())) {
-    node_energy_.resize(size_t(nr_));
+        R_(size_t(lattice.num_cells()), Rotation::Identity()), node_cells_(node_cells(lattice)) {
+    cell_energy_.resize(size_t(lattice.num_cells()));
   }
 
   std::string name() const override { return "cpu"; }
@@ -199,33 +188,27 @@ class CpuBackend final : public Backend {
     stats.ms_transfer += ms_since(t0);
   }
 
-  CsrEdges edges_of(int64_t i) const {
-    return {pose_.data(), lat_.rest.data(), R_.data(), lat_.adj.data(),
-            lat_.weighted() ? lat_.adj_weight.data() : nullptr, i, lat_.adj_offsets[i],
-            lat_.adj_offsets[i + 1]};
-  }
+  CellCorners corners_of(int64_t c) const { return {pose_.data(), lat_.rest.data(), lat_.cell_nodes[size_t(c)]}; }
 
-  // New rotations from the current pose. with_energy: first store in node_energy_ each node's
-  // energy of the current pose with the rotations it had (the state after the last global step).
+  // New rotations from the current pose. with_energy: first store in cell_energy_ each copy's
+  // energy of the current pose with the rotation it had (the state after the last global step).
   void rotations(bool with_energy) {
-    parallel_for(nr_, [&](int64_t i) {
+    parallel_for(lat_.num_cells(), [&](int64_t c) {
       double S[9];
-      const double e = node_covariance(edges_of(i), with_energy, R_[i].data(), S);
-      if (with_energy) node_energy_[i] = node_energy(i, e);
-      R_[i] = best_rotation_fast(Eigen::Map<const Rotation>(S));
+      const double e = cell_covariance(corners_of(c), with_energy, R_[size_t(c)].data(), S);
+      if (with_energy) cell_energy_[size_t(c)] = cell_weight_of(lat_, c) * e;
+      R_[size_t(c)] = best_rotation_fast(Eigen::Map<const Rotation>(S));
     }, 256);
-  }
-
-  double node_energy(int64_t i, double arap) const {
-    return larap::node_energy<double>(hs_.gamma_eff, arap, hs_.anchored[i] != 0, hs_.anchor_weight,
-                                      (pose_.row(i) - lat_.rest.row(i)).squaredNorm());
   }
 
   // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term and
   // the glue, c~^T (M + mu G^T G) c~ - 2 c~ . H~ + K~ (handle_system.h).
   double finish_energy() {
-    double total = 0.0;
-    for (double e : node_energy_) total += e;
+    double arap = 0.0;
+    for (double e : cell_energy_) arap += e;
+    double total = hs_.gamma_eff * arap;
+    for (int64_t i = 0; i < nr_; ++i)
+      if (hs_.anchored[i]) total += hs_.anchor_weight * (pose_.row(i) - lat_.rest.row(i)).squaredNorm();
     const RowMatrixX3d Pc = pose_.topRows(nr_).rowwise() - hs_.origin.transpose();
     RowMatrixX3d MP = M_ * Pc;
     if (G_.nonZeros() > 0) MP += G_ * Pc;
@@ -238,9 +221,13 @@ class CpuBackend final : public Backend {
     const auto& C = lat_.rest;
     const double g = hs_.gamma_eff, a = hs_.anchor_weight;
     parallel_for(nr_, [&](int64_t i) {
-      double arap[3];
-      node_rhs(edges_of(i), g, R_[i].data(), arap);
-      Eigen::Vector3d b = Eigen::Vector3d(arap[0], arap[1], arap[2]) + Btt.row(i).transpose();
+      double arap[3] = {0.0, 0.0, 0.0};
+      for (int32_t k = node_cells_.offsets[size_t(i)]; k < node_cells_.offsets[size_t(i) + 1]; ++k) {
+        const auto& sk = node_cells_.s[size_t(k)];
+        const double sv[3] = {sk[0], sk[1], sk[2]};
+        cell_rhs_add(R_[size_t(node_cells_.cell[size_t(k)])].data(), sv, arap);
+      }
+      Eigen::Vector3d b = g * Eigen::Vector3d(arap[0], arap[1], arap[2]) + Btt.row(i).transpose();
       if (hs_.anchored[i]) b += a * C.row(i).transpose();
       rhs_.row(i) = b.transpose();
     }, 1024);
@@ -248,9 +235,9 @@ class CpuBackend final : public Backend {
 
   // Energy of the current pose with the current rotations (scaled).
   double evaluate() {
-    parallel_for(nr_, [&](int64_t i) {
+    parallel_for(lat_.num_cells(), [&](int64_t c) {
       double S[9];
-      node_energy_[i] = node_energy(i, node_covariance(edges_of(i), true, R_[i].data(), S));
+      cell_energy_[size_t(c)] = cell_weight_of(lat_, c) * cell_covariance(corners_of(c), true, R_[size_t(c)].data(), S);
     }, 1024);
     return finish_energy();
   }
@@ -259,8 +246,9 @@ class CpuBackend final : public Backend {
   const RowMatrixX3d& V_;
   const int64_t nr_;  // real nodes: the unknowns of the system
   RowMatrixX3d pose_;  // #N by 3: real nodes, then the stencil shell (Lattice::fill_shell)
-  std::vector<Rotation> R_;
-  std::vector<double> node_energy_;
+  std::vector<Rotation> R_;            // per cell copy
+  NodeCells node_cells_;               // the right-hand side's gather (node_cells.h)
+  std::vector<double> cell_energy_;    // w_c e_c per cell copy
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
   Eigen::SparseMatrix<double> G_;  // mu G^T G, the glue of carried parts (the system and the energy)

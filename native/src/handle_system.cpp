@@ -38,12 +38,10 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
     for (int64_t j = b; j < e; ++j) hs.alpha[j] = wg / double(G) * (omega.empty() ? 1.0 : omega[j]) / total;
   }
 
-  // gamma is per unit of edge weight (the plain lattice: per directed edge).
-  double weight = double(lat.edges.size());
-  if (lat.weighted()) {
-    weight = 0.0;
-    for (double w : lat.edge_weight) weight += w;
-  }
+  // gamma is per term of the energy, one (cell copy, edge) pair weighing cell_weight: twice the
+  // edge weights' sum is the terms' (12 per whole cell).
+  double weight = 0.0;
+  for (double w : lat.edge_weight) weight += w;
   const double directed = std::max<double>(1.0, 2.0 * weight);
   const double s = size, h = lat.h;
   hs.gamma_eff = gamma * s * s / (h * h * directed);
@@ -233,7 +231,7 @@ std::vector<Eigen::Triplet<double>> arap_triplets(const Lattice& lat, const Hand
   const double g2 = 2.0 * hs.gamma_eff;
   for (size_t k = 0; k < lat.edges.size(); ++k) {
     const auto& e = lat.edges[k];
-    const double w = lat.weighted() ? g2 * lat.edge_weight[k] : g2;
+    const double w = g2 * lat.edge_weight[k];
     trip.emplace_back(e[0], e[0], w);
     trip.emplace_back(e[1], e[1], w);
     trip.emplace_back(e[0], e[1], -w);

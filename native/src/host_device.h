@@ -1,5 +1,5 @@
 // LARAP_HD marks maths written once and compiled for both the host (plain C++) and the device
-// (nvcc): the stencils (stencil.h), the per-node flip-flop terms (node_terms.h) and the float
+// (nvcc): the stencils (stencil.h), the per-cell flip-flop terms (cell_terms.h) and the float
 // rotation fit (native/cuda/rotation.cuh). Under nvcc it is __host__ __device__ and forced
 // inline; in a host compiler it is plain `inline`. LARAP_UNROLL asks nvcc to unroll the loop
 // that follows, LARAP_NO_UNROLL not to (a host compiler sees neither).

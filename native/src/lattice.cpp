@@ -180,8 +180,11 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q) lat.cell_nodes[c][q] = node_of_slot[slots.find(int32_t(8 * c + q))];
 
-  // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node;
-  // an edge of several copies weighs the mean of their weights.
+  // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node.
+  // An edge weighs half the sum of the weights of the copies it is an edge of: the energy is a
+  // sum over cell copies of their 12 edges (docs/method.md), so an edge inside the lattice (4
+  // cells) weighs 2, one on the surface 1 or 0.5, and the Laplacian's factor 2 g w_ij is g times
+  // the sum over its copies.
   const bool weighted = !lat.cell_weight.empty();
   std::vector<int32_t> count(size_t(nn) + 1, 0);
   for (int64_t c = 0; c < nc; ++c)
@@ -212,9 +215,9 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
       auto run = it;
       double sum = 0.0;
       for (; run != e && run->axis == it->axis && run->upper == it->upper; ++run) sum += run->w;
-      const double w = sum / double(run - it);
+      const double w = 0.5 * sum;
       lat.edges.push_back({int32_t(i), it->upper});
-      if (weighted) lat.edge_weight.push_back(w);
+      lat.edge_weight.push_back(w);
       nbrs[i].emplace_back(it->upper, w);
       nbrs[it->upper].emplace_back(int32_t(i), w);
       it = run;
@@ -226,11 +229,11 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
     lat.adj_offsets[i + 1] = lat.adj_offsets[i] + int32_t(nbrs[i].size());
   }
   lat.adj.reserve(size_t(lat.adj_offsets[nn]));
-  if (weighted) lat.adj_weight.reserve(size_t(lat.adj_offsets[nn]));
+  lat.adj_weight.reserve(size_t(lat.adj_offsets[nn]));
   for (int64_t i = 0; i < nn; ++i)
     for (const auto& [j, w] : nbrs[i]) {
       lat.adj.push_back(j);
-      if (weighted) lat.adj_weight.push_back(w);
+      lat.adj_weight.push_back(w);
     }
 
   // Connected components (union-find over edges).

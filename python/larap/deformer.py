@@ -356,8 +356,9 @@ class Deformer:
         return self._core.lattice_edges()
 
     def lattice_edge_weights(self) -> np.ndarray:
-        """(E,) weight of each lattice edge in the ARAP energy: the mean of cell_weights over the
-        cells (copies) it is an edge of; 1 wherever no cell is split."""
+        """(E,) weight w_ij of each lattice edge in the global step's Laplacian (2 g w_ij): half
+        the sum of cell_weights over the cells (copies) it is an edge of, since the energy sums
+        each cell's 12 edges with the cell's own rotation (2 inside a plain lattice)."""
         return self._core.lattice_edge_weights()
 
     def cell_weights(self) -> np.ndarray:

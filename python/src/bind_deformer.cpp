@@ -301,7 +301,7 @@ void bind_deformer(py::module_& m) {
       .def("lattice_edge_weights", [](const PyDeformer& self) {
         const auto& lat = self.engine.lattice();
         py::array_t<double> a(py::ssize_t(lat.edges.size()));
-        for (size_t k = 0; k < lat.edges.size(); ++k) a.mutable_at(k) = lat.weighted() ? lat.edge_weight[k] : 1.0;
+        for (size_t k = 0; k < lat.edges.size(); ++k) a.mutable_at(k) = lat.edge_weight[k];
         return a;
       })
       .def("cell_weights", [](const PyDeformer& self) {

@@ -315,8 +315,9 @@ TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
   EXPECT_NE(lat.vertex_cell[1], lat.vertex_cell[9]);
   // Each copy weighs its slab's share of the cell: 0.8 x 0.8 x 0.2 = 0.128, plus the voxels its
   // surface only touches (at most one more voxel layer around it: 22 x 22 x 7 / 24^3 = 0.245); the
-  // whole cell of the loose vertex weighs 1; an edge of a slab's copy belongs to it alone.
-  ASSERT_TRUE(lat.weighted());
+  // whole cell of the loose vertex weighs 1; an edge of a slab's copy belongs to it alone, so it
+  // weighs half the copy's weight (the energy sums each copy's 12 edges; lattice.h).
+  ASSERT_FALSE(lat.cell_weight.empty());
   EXPECT_EQ(lat.cell_weight[0], 1.0);
   for (int c : {1, 2}) {
     EXPECT_GE(lat.cell_weight[c], 0.128) << c;
@@ -325,13 +326,12 @@ TEST(CellPieces, TwoSlabsInOneCellAreTwoCopiesSharingNoNode) {
   for (size_t e = 0; e < lat.edges.size(); ++e) {
     const int32_t i = lat.edges[e][0];
     const int copy = std::count(a.begin(), a.end(), i) ? 1 : std::count(b.begin(), b.end(), i) ? 2 : 0;
-    EXPECT_EQ(lat.edge_weight[e], lat.cell_weight[copy]) << e;
+    EXPECT_EQ(lat.edge_weight[e], 0.5 * lat.cell_weight[copy]) << e;
   }
-  // Without splitting the cell is kept once, and nothing is weighted.
+  // Without splitting the cell is kept once, and every cell weighs 1.
   const Lattice plain = build(m, 1.0, false);
   EXPECT_EQ(plain.cell_copies(3, 3, 3), 1);
-  EXPECT_FALSE(plain.weighted());
-  EXPECT_TRUE(plain.cell_weight.empty() && plain.adj_weight.empty());
+  EXPECT_TRUE(plain.cell_weight.empty());
 }
 
 // Two slabs of separate mesh parts in one cell, 0.6 x 0.6 and 0.5 x 0.5 wide (so that no corners
@@ -429,7 +429,7 @@ TEST(CellPieces, UJoinedInsideTheCellIsOneCopy) {
 TEST(CellPieces, LoneShapesGiveThePlainLattice) {
   const PolygonMesh box = gen::box({0, 0, 0}, {1, 1, 1});
   expect_same_lattice(build(box, 0.1, true), build(box, 0.1, false));
-  EXPECT_FALSE(build(box, 0.1, true).weighted());  // nothing split: the paper's energy
+  EXPECT_TRUE(build(box, 0.1, true).cell_weight.empty());  // nothing split: every cell weighs 1
   const PolygonMesh sphere = gen::sphere({0.3, -0.2, 0.1}, 1.0, 24, 48);
   expect_same_lattice(build(sphere, 0.15, true), build(sphere, 0.15, false));
 }

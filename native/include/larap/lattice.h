@@ -88,12 +88,12 @@ class Lattice {
   std::vector<int32_t> adj_offsets;           // #N+1 CSR offsets of the edge neighbourhood
   std::vector<int32_t> adj;                   // neighbour node ids, sorted per node
   std::vector<std::array<int32_t, 2>> edges;  // #E undirected edges (i < j), real nodes only
-  // Edge weights (empty when every cell weighs 1): an edge weighs the mean of cell_weight over
-  // the copies it is an edge of (the material around it), so where nothing is split every edge
-  // weighs 1 as on the plain lattice, and a face a whole cell shares with a nearly empty copy
-  // weighs about half. (The max or the self-weighted mean over the copies dragged the comb's
-  // neighbours more: median 1.51 / 1.36 % against 1.10 %, docs/method.md.)
-  // The ARAP energy is sum_i sum_j w_ij |(p_i - p_j) - R_i (c_i - c_j)|^2 (docs/method.md).
+  // Edge weights: the ARAP energy is a sum over cell copies, each with one rotation, of its 12
+  // edges, sum_c w_c sum_(a,b) |(p_a - p_b) - R_c (c_a - c_b)|^2 (docs/method.md, "Energy"), so
+  // an edge's weight in the system is half the sum of cell_weight over the copies it is an edge
+  // of (the Laplacian's entry 2 g w_ij): 2 inside a plain lattice (4 cells), 1 or 0.5 on its
+  // surface; a face a whole cell shares with a nearly empty copy weighs about half as much as one
+  // between two whole cells.
   std::vector<double> edge_weight;            // #E, parallel to edges
   std::vector<double> adj_weight;             // parallel to adj
   std::vector<int32_t> component;             // #N connected component id of each node
@@ -116,7 +116,6 @@ class Lattice {
   int64_t num_nodes() const { return static_cast<int64_t>(node_coords.size()); }
   int64_t num_real_nodes() const { return real_nodes; }
   int64_t num_shell_nodes() const { return num_nodes() - real_nodes; }
-  bool weighted() const { return !edge_weight.empty(); }
 
   // The lowest node id at integer grid coordinates, or -1 if no kept cell has that corner. With
   // split cells a point may hold several nodes: use cell_nodes of the right copy instead.

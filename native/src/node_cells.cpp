@@ -1,0 +1,33 @@
+#include "node_cells.h"
+
+namespace larap {
+
+NodeCells node_cells(const Lattice& lat) {
+  const int64_t nr = lat.num_real_nodes(), nc = lat.num_cells();
+  NodeCells t;
+  t.offsets.assign(size_t(nr) + 1, 0);
+  for (int64_t c = 0; c < nc; ++c)
+    for (int q = 0; q < 8; ++q) ++t.offsets[size_t(lat.cell_nodes[c][q]) + 1];
+  for (int64_t i = 0; i < nr; ++i) t.offsets[i + 1] += t.offsets[i];
+  t.cell.resize(size_t(t.offsets[nr]));
+  t.s.resize(t.cell.size());
+  std::vector<int32_t> fill(t.offsets.begin(), t.offsets.end() - 1);
+  for (int64_t c = 0; c < nc; ++c) {  // ascending c per node: a fixed order of the sums
+    const double w = cell_weight_of(lat, c);
+    for (int q = 0; q < 8; ++q) {
+      const int32_t i = lat.cell_nodes[c][q];
+      std::array<double, 3> s{0.0, 0.0, 0.0};
+      for (int axis = 0; axis < 3; ++axis) {
+        const int32_t j = lat.cell_nodes[c][q ^ (1 << axis)];
+        for (int a = 0; a < 3; ++a) s[size_t(a)] += lat.rest(i, a) - lat.rest(j, a);
+      }
+      for (double& v : s) v *= w;
+      const int32_t k = fill[size_t(i)]++;
+      t.cell[size_t(k)] = int32_t(c);
+      t.s[size_t(k)] = s;
+    }
+  }
+  return t;
+}
+
+}  // namespace larap

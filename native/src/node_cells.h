@@ -1,0 +1,28 @@
+// Per real node, the cell copies it is a corner of: what the right-hand side of the global step
+// gathers (cell_terms.h), b_i = g sum_k R_{cell[k]} s[k] over k in [offsets[i], offsets[i + 1]),
+// with s[k] = w_c sum over the 3 edges of the copy at that corner of (c_i - c_other), the rest
+// edge vectors times the copy's cell_weight. A node is a corner of at most 8 copies where nothing
+// is split, of more where copies of one cell share it.
+#pragma once
+#include <larap/lattice.h>
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace larap {
+
+struct NodeCells {
+  std::vector<int32_t> offsets;          // #real nodes + 1
+  std::vector<int32_t> cell;             // cell copy of each entry, ascending per node
+  std::vector<std::array<double, 3>> s;  // w_c times the sum of the corner's 3 rest edges
+};
+
+NodeCells node_cells(const Lattice& lat);
+
+// cell_weight[c], or 1 where the lattice has no weights.
+inline double cell_weight_of(const Lattice& lat, int64_t c) {
+  return lat.cell_weight.empty() ? 1.0 : lat.cell_weight[size_t(c)];
+}
+
+}  // namespace larap

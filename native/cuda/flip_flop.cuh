@@ -13,7 +13,7 @@
 namespace larap {
 namespace cuda {
 
-// Node i's 6 lattice slots, as node_terms.h's Edges accessor.
+// Node i's 6 lattice slots and weights (the Laplacian in residual_at).
 struct SlotEdges {
   const System& s;
   float4 pi, ci;

@@ -24,20 +24,13 @@ struct SlotEdges {
 #pragma unroll
     for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
   }
-  __device__ __forceinline__ int size() const { return 6; }
   __device__ __forceinline__ float weight(int k) const {
     return s.nbw ? __ldg(s.nbw + k * s.n + i_) : 1.f;
   }
-  __device__ __forceinline__ void edge(int k, float (&dp)[3], float (&dc)[3]) const {
-    const int j = js[k];
-    const float4 p = pi - s.x[j], c = ci - s.rest[j];
-    dp[0] = p.x, dp[1] = p.y, dp[2] = p.z;
-    dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
-  }
 };
 
-// Node i's extra neighbours (split cells: more than one neighbour in a direction), the same
-// accessor over nbx[nbx_off[i] .. nbx_off[i + 1]).
+// Node i's extra neighbours (split cells: more than one neighbour in a direction) and their
+// weights, over nbx[nbx_off[i] .. nbx_off[i + 1]).
 struct ExtraEdges {
   const System& s;
   float4 pi, ci;
@@ -46,12 +39,6 @@ struct ExtraEdges {
       : s(sys), pi(p), ci(c), k0(__ldg(sys.nbx_off + i)), k1(__ldg(sys.nbx_off + i + 1)) {}
   __device__ __forceinline__ int size() const { return k1 - k0; }
   __device__ __forceinline__ float weight(int k) const { return s.nbxw ? __ldg(s.nbxw + k0 + k) : 1.f; }
-  __device__ __forceinline__ void edge(int k, float (&dp)[3], float (&dc)[3]) const {
-    const int j = __ldg(s.nbx + k0 + k);
-    const float4 p = pi - s.x[j], c = ci - s.rest[j];
-    dp[0] = p.x, dp[1] = p.y, dp[2] = p.z;
-    dc[0] = c.x, dc[1] = c.y, dc[2] = c.z;
-  }
 };
 
 // Cell copy c's corners, as cell_terms.h's Corners accessor.

@@ -32,8 +32,8 @@ struct System {
   const int* nbr = nullptr;
   const int* nbx_off = nullptr;  // n + 1
   const int* nbx = nullptr;
-  // Edge weights (Lattice::adj_weight) of the slots (like nbr) and of the extras (like nbx); null
-  // when the lattice has none (every edge weighs 1).
+  // Edge weights (Lattice::adj_weight) of the slots (like nbr) and of the extras (like nbx), for
+  // the Laplacian in the residual (always set: half the sum of the copies' weights).
   const float* nbw = nullptr;
   const float* nbxw = nullptr;
   // A split for unrolled products: diagonal, the 6 slot entries (slot-major, like nbr), and the

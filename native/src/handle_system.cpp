@@ -45,6 +45,10 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   const double directed = std::max<double>(1.0, 2.0 * weight);
   const double s = size, h = lat.h;
   hs.gamma_eff = gamma * s * s / (h * h * directed);
+  // The anchors and the glue pull per unit of the mean edge weight (2 inside a plain lattice), so
+  // that they stand to the lattice's stiffness as they did with one weight per edge, where kGlue
+  // was measured (carried_parts.h).
+  const double mean_edge = lat.edges.empty() ? 1.0 : weight / double(lat.edges.size());
   hs.energy_scale = 1.0 / (s * s);
 
   // The component of each row; components without a pulling row are carried by a handled one
@@ -63,8 +67,8 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   hs.anchored = std::move(carried.anchored);
   hs.node_component = std::move(carried.node_component);
   hs.glue = std::move(carried.glue);
-  hs.anchor_weight = 2.0 * hs.gamma_eff;
-  hs.glue_weight = kGlue * hs.gamma_eff;
+  hs.anchor_weight = 2.0 * hs.gamma_eff * mean_edge;
+  hs.glue_weight = kGlue * hs.gamma_eff * mean_edge;
 
   // q = B^T alpha; per (node, group) q_g[i] and P_g[i], accumulated group by group in a dense
   // scratch row over the nodes the group touches, then ordered by node (counting sort); per

@@ -4,7 +4,7 @@
 // which lattice components without a handle follow a handled one (carried_parts.h) and which
 // are held at rest because nothing carries them.
 //
-//   E(c', R) = gamma_eff * sum_i sum_{j in N(i)} w_ij |(c'_i - c'_j) - R_i (c_i - c_j)|^2
+//   E(c', R) = gamma_eff * sum_c w_c sum_{edges (a,b) of c} |(c'_a - c'_b) - R_c (c_a - c_b)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
 //            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2
 //
@@ -13,12 +13,14 @@
 // (default 1) whatever its size, and inside a group the vertex weights omega (default 1) spread
 // that pull. set_handles(ids) is G = m groups of one vertex, so alpha_j = 1/m.
 //
-// (w_ij: the lattice's edge weights, 1 except on the edges of split cells; lattice.h.)
-// Scale-free gamma (docs/method.md): E = gamma * s^2 * wmean_e(|r_e|^2 / h^2) + handle term, with
-// s the radius of gyration of the rest vertices, so gamma_eff = gamma * s^2 / (h^2 * sum of the
-// directed edges' weights). The same definition on every level of a hierarchy makes the levels
-// solve one problem, up to the fine level's weights (coarser levels weigh every edge 1: they only
-// give the fine level its starting pose).
+// (w_c: the copies' weights, 1 except for copies of split cells; lattice.h.)
+// Scale-free gamma (docs/method.md): E = gamma * s^2 * wmean_(c, edge)(|r|^2 / h^2) + handle term,
+// with s the radius of gyration of the rest vertices, so gamma_eff = gamma * s^2 / (h^2 * 12 sum_c
+// w_c) (= twice the lattice's edge weights' sum). The anchors and the glue weigh per unit of the
+// mean edge weight, as stiff against the lattice as with the paper's node energy. The same
+// definition on every level of a hierarchy makes the levels solve one problem, up to the fine
+// level's weights (coarser levels weigh every cell 1: they only give the fine level its starting
+// pose).
 //
 // Per pose nothing costs in proportion to the handle vertices. With M = B^T diag(alpha) B (fixed
 // per handle set) and, in coordinates centred at `origin` (x~ = x - origin, which keeps the sums

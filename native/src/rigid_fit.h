@@ -1,4 +1,4 @@
-// Rotation fits (host, double): the CPU backend's per-node rotation and the rotation of the
+// Rotation fits (host, double): the CPU backend's per-cell rotation and the rotation of the
 // per-component rigid fit that starts a pose (warm_start.cpp, from moments). The device's float
 // rotation fit is native/cuda/rotation.cuh.
 #pragma once

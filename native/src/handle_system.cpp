@@ -39,8 +39,9 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   }
 
   // gamma is per term of the energy, one (cell copy, edge) pair weighing cell_weight: twice the
-  // edge weights' sum is the terms' (12 per whole cell), counting stiff branchings as plain ones.
-  const double weight = lat.plain_edge_weight_sum;
+  // edge weights' sum is the terms' (12 per whole cell).
+  double weight = 0.0;
+  for (double w : lat.edge_weight) weight += w;
   const double directed = std::max<double>(1.0, 2.0 * weight);
   const double s = size, h = lat.h;
   hs.gamma_eff = gamma * s * s / (h * h * directed);

@@ -11,7 +11,6 @@
 #include <numeric>
 #include <string>
 
-#include "branching_copies.h"
 #include "cell_pieces.h"
 #include "disjoint_sets.h"
 #include "mesh_parts.h"
@@ -61,19 +60,13 @@ class LatticeAssembly {
  public:
   static Lattice fine(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
                       const std::vector<uint8_t>& marks, const CellPieces& pieces,
-                      const std::vector<int64_t>& vertex_cells, double junction_stiffness);
+                      const std::vector<int64_t>& vertex_cells);
   static Lattice coarse(const Lattice& finer, std::vector<int32_t>* parent);
 
  private:
   static Lattice start(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
                        const std::vector<int64_t>& copy_cell, const std::vector<uint8_t>& kinds);
-  // Nodes from the slot classes (then cell_nodes), and edges from cell_nodes and cell_weight.
-  static void finish(Lattice& lat, DisjointSets& slots) {
-    assign_nodes(lat, slots);
-    link_edges(lat);
-  }
-  static void assign_nodes(Lattice& lat, DisjointSets& slots);
-  static void link_edges(Lattice& lat);
+  static void finish(Lattice& lat, DisjointSets& slots);
   static int64_t point_index(const Lattice& lat, const Eigen::Vector3i& p) {
     return p.x() + int64_t(lat.dims.x() + 1) * (p.y() + int64_t(lat.dims.y() + 1) * p.z());
   }
@@ -161,7 +154,7 @@ Lattice LatticeAssembly::start(const Eigen::Vector3d& origin, double h, const Ei
   return lat;
 }
 
-void LatticeAssembly::assign_nodes(Lattice& lat, DisjointSets& slots) {
+void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
   const int64_t nc = lat.num_cells();
   // Nodes: one per class, ordered by grid point, then by the class's smallest slot.
   std::vector<std::pair<int64_t, int32_t>> roots;
@@ -186,10 +179,7 @@ void LatticeAssembly::assign_nodes(Lattice& lat, DisjointSets& slots) {
   lat.cell_nodes.resize(size_t(nc));
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q) lat.cell_nodes[c][q] = node_of_slot[slots.find(int32_t(8 * c + q))];
-}
 
-void LatticeAssembly::link_edges(Lattice& lat) {
-  const int64_t nc = lat.num_cells(), nn = lat.real_nodes;
   // Edges: the 12 edges of every copy, listed by their lower node, then axis, then upper node.
   // An edge weighs half the sum of the weights of the copies it is an edge of: the energy is a
   // sum over cell copies of their 12 edges (docs/method.md), so an edge inside the lattice (4
@@ -233,8 +223,6 @@ void LatticeAssembly::link_edges(Lattice& lat) {
       it = run;
     }
   }
-  lat.plain_edge_weight_sum = 0.0;
-  for (double w : lat.edge_weight) lat.plain_edge_weight_sum += w;
   lat.adj_offsets.assign(size_t(nn + 1), 0);
   for (int64_t i = 0; i < nn; ++i) {
     std::sort(nbrs[i].begin(), nbrs[i].end());
@@ -263,7 +251,7 @@ void LatticeAssembly::link_edges(Lattice& lat) {
 
 Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
                               const std::vector<uint8_t>& marks, const CellPieces& pieces,
-                              const std::vector<int64_t>& vertex_cells, double junction_stiffness) {
+                              const std::vector<int64_t>& vertex_cells) {
   // Copies: one per piece of an analysed cell, one for every other kept cell.
   std::vector<int64_t> copy_cell;
   std::vector<uint8_t> kinds, plain;
@@ -313,22 +301,7 @@ Lattice LatticeAssembly::fine(const Eigen::Vector3d& origin, double h, const Eig
     }
   }
   share_ghost_corners(lat, plain, slots);
-  assign_nodes(lat, slots);
-  // Branchings: stiffer by junction_stiffness, outside gamma's normalisation (a copy adds 6 w_c to
-  // the edge weights' sum: 12 edges at half its weight), so the rest of the lattice keeps its
-  // stiffness against the handles.
-  double extra = 0.0;
-  if (junction_stiffness != 1.0) {
-    const std::vector<uint8_t> branching = branching_copies(lat);
-    for (int64_t c = 0; c < lat.num_cells(); ++c) {
-      if (!branching[size_t(c)]) continue;
-      if (lat.cell_weight.empty()) lat.cell_weight.assign(size_t(lat.num_cells()), 1.0);
-      extra += 6.0 * lat.cell_weight[size_t(c)] * (junction_stiffness - 1.0);
-      lat.cell_weight[size_t(c)] *= junction_stiffness;
-    }
-  }
-  link_edges(lat);
-  lat.plain_edge_weight_sum -= extra;
+  finish(lat, slots);
   lat.vertex_cell.resize(vertex_cells.size());
   for (size_t v = 0; v < vertex_cells.size(); ++v)
     lat.vertex_cell[v] = lat.cell_grid_[vertex_cells[v]];
@@ -426,8 +399,6 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (options.split_resolution < 4 || options.split_resolution > 64)
     throw InvalidInput("split_resolution must be between 4 and 64, got " +
                        std::to_string(options.split_resolution));
-  if (!(options.junction_stiffness >= 1.0 && options.junction_stiffness <= 1e6))
-    throw InvalidInput("junction_stiffness must be between 1 and 1e6, got " + number_text(options.junction_stiffness));
   const int64_t max_bytes = options.max_bytes > 0 ? options.max_bytes : physical_memory_bytes() / 2;
 
   const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
@@ -486,8 +457,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
     pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
                               mesh_parts(mesh), grid.vertex_cells, options.split_resolution,
                               max_bytes - Lattice::estimate_bytes(grid.dims));
-  Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells,
-                                      options.junction_stiffness);
+  Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
   build_stencil_shell(lat);
   return lat;
 }

@@ -41,9 +41,6 @@ def _add_solver_args(p):
                    help="keep the plain lattice: do not keep a cell once per connected piece inside it")
     p.add_argument("--split-resolution", type=int, default=24,
                    help="voxels per cell edge that decide the pieces of a cell (default 24)")
-    p.add_argument("--junction-stiffness", type=float, default=300.0,
-                   help="how many times stiffer the lattice is where the solid branches, e.g. a palm's "
-                        "end with the roots of fingers closer than a cell (default 300; 1: by material only)")
 
 
 def _deform(V, F, groups, args, out_path, template=None):
@@ -51,8 +48,7 @@ def _deform(V, F, groups, args, out_path, template=None):
     t0 = time.perf_counter()
     d = Deformer(V, F, cells=args.cells, cell_size=args.cell_size, weights=args.weights,
                  gamma=args.gamma, device=args.device, levels=args.levels,
-                 split_cells=args.split_cells, split_resolution=args.split_resolution,
-                 junction_stiffness=args.junction_stiffness)
+                 split_cells=args.split_cells, split_resolution=args.split_resolution)
     # Each group of the file is a handle group; one transform per group when every group has
     # one, else the same targets vertex by vertex.
     d.set_handle_groups([g.vertices for g in groups], weights=[g.weight for g in groups])

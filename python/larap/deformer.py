@@ -143,18 +143,13 @@ class Deformer:
         split_resolution along an axis to about 2.7 / split_resolution at the worst angle (0.05
         to 0.11 cell at 24; docs/method.md). Each analysed cell takes split_resolution^3 bytes
         while the lattice is built, a few times more where several parts meet in it.
-    junction_stiffness: how many times stiffer the lattice is where the solid branches (a cell
-        copy joined across one face to several pieces of the next cell: a palm's end with the
-        roots of fingers closer than a cell), default 300, 1..1e6; 1 weighs them by their material
-        only. A finger turned about its root then bends in its own cells instead of moving the
-        nodes its neighbours' roots share (docs/method.md, "Stiff branchings").
     max_bytes: memory the lattice's grid and cell splitting's voxels may take (default half the
         machine's memory); over it, MemoryError says what to lower, before allocating.
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
                  weights="trilinear", gamma=DEFAULT_GAMMA, device="cpu", max_bytes=None, levels=1,
-                 split_cells=True, split_resolution=24, junction_stiffness=300.0):
+                 split_cells=True, split_resolution=24):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
@@ -168,8 +163,7 @@ class Deformer:
         self._core = _core.Deformer(V, offsets, indices, n_cells, size, str(weights), _real("gamma", gamma),
                                     str(device), limit, _integer("levels", levels),
                                     _boolean("split_cells", split_cells),
-                                    _integer("split_resolution", split_resolution),
-                                    _real("junction_stiffness", junction_stiffness))
+                                    _integer("split_resolution", split_resolution))
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()

@@ -58,7 +58,7 @@ py::array_t<double> to_numpy(const RowMatrixX3d& M) {
 std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels,
-                                      bool split_cells, int split_resolution, double junction_stiffness) {
+                                      bool split_cells, int split_resolution) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -72,7 +72,6 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   opt.lattice.max_bytes = max_bytes;
   opt.lattice.split_cells = split_cells;
   opt.lattice.split_resolution = split_resolution;
-  opt.lattice.junction_stiffness = junction_stiffness;
   opt.weights = larap::parse_weight_kind(weights);
   opt.gamma = gamma;
   opt.device = device;
@@ -202,8 +201,7 @@ void bind_deformer(py::module_& m) {
       .def(py::init(&make), py::arg("vertices"), py::arg("face_offsets"), py::arg("face_indices"),
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
            py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
-           py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24,
-           py::arg("junction_stiffness") = larap::LatticeOptions{}.junction_stiffness)
+           py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24)
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());

@@ -2,10 +2,9 @@
 """B-spline stencils at junctions, where pieces meet (issue 9; native/src/junction_stencils.h): on a
 generated character whose fingers are separate parts pushed into the palm, half a cell thick and a
 tenth of a cell apart on the default lattice, a finger turned 60 degrees leaves its neighbours
-within 1% of the hand with either weight kind at every lattice size from 4,000 to 9,000 cells
-(stiff branchings, native/src/branching_copies.h; not yet with the hand at an angle to the grid: a
-strict xfail), and the final (B-spline) pose has no step where the fingers leave the palm; rest,
-rigid and affine poses are still reproduced, on both devices."""
+within 1% of the hand with either weight kind at the default lattice (not yet at every lattice size
+around it: a strict xfail), and the final (B-spline) pose has no step where the fingers leave the
+palm; rest, rigid and affine poses are still reproduced, on both devices."""
 import math
 
 import numpy as np
@@ -83,14 +82,14 @@ def test_character_finger_turned_leaves_its_neighbours(weights):
 CHARACTER_CELLS = (4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000, 9000)
 
 
-def character_sweep(palm_part_only=False, turned=0.0, device="cpu"):
+def character_sweep(palm_part_only=False, turned=0.0):
     """Per lattice size, the other fingers' largest move (% of the hand's diagonal) with the worse
     of the two weight kinds, for finger_pose after 30 flip-flops; palm_part_only: the palm's group
     (and the body's) without the fingers' roots inside the palm, as an artist who pins the palm
     object has it (a finger is then held to the palm by the lattice alone); turned: the whole
     character turned that many degrees about the vertical axis, so that the hand lies at an angle
     to the lattice's axes (the pose turned with it)."""
-    key = ("drag_palm_part" if palm_part_only else "drag") + (f"_turned_{turned:g}" if turned else "") + "_" + device
+    key = ("drag_palm_part" if palm_part_only else "drag") + (f"_turned_{turned:g}" if turned else "")
     if not hasattr(character_sweep, key):
         V, F, parts = shapes.character()
         groups, T = finger_pose(V, parts)
@@ -104,7 +103,7 @@ def character_sweep(palm_part_only=False, turned=0.0, device="cpu"):
         for cells in CHARACTER_CELLS:
             worst = 0.0
             for weights in ("trilinear", "bspline"):
-                d = larap.Deformer(V, F, weights=weights, cells=cells, device=device)
+                d = larap.Deformer(V, F, weights=weights, cells=cells)
                 d.set_handle_groups(groups)
                 X = d.solve(transforms=T, iterations=30)
                 others = [parts["fingers"][k] for k in (0, 2, 3)]
@@ -122,27 +121,31 @@ def assert_within(drag, median, worst, within_1pct, within=1.0):
     assert (drag <= within).sum() >= within_1pct, drag
 
 
+def test_character_at_every_lattice_size_stays_within_the_measured_bounds():
+    """What the engine does today (2026-11-24, one rotation per cell: 7 of 10 sizes within 1%,
+    median 0.78%, worst 2.0%; with node rotations 4 of 10, median 1.7%, worst 3.1%): a guard
+    against getting worse, not the target (the strict xfail below)."""
+    assert_within(character_sweep(), median=0.85, worst=2.2, within_1pct=7)
+
+
+def test_character_with_the_palm_part_held_stays_within_the_measured_bounds():
+    """The same with the palm's group holding the palm part alone (2026-11-24: 5 of 10 sizes within
+    1%, median 0.99%, worst 2.4%; node rotations: 1 of 10, median 2.0%, worst 4.1%): worse than
+    with the roots held, a guard, not the target."""
+    drag = character_sweep(palm_part_only=True)
+    assert not np.allclose(drag, character_sweep()), drag  # the pose differs from the other sweep's
+    assert_within(drag, median=1.1, worst=2.6, within_1pct=5)
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met yet (2026-11-24): at 3 of 10 lattice sizes "
+                   "from 4000 to 9000 cells the other fingers move 1.05-2.0% of the hand (with the "
+                   "palm part alone held: 5 of 10 sizes over 1%, worst 2.4%). The cell "
+                   "where the palm ends holds the roots of every finger joined through the palm's "
+                   "end: its far nodes are shared by all the fingers and rise with the turned one "
+                   "(docs/method.md, 'What splitting cannot separate')")
 def test_character_at_every_lattice_size_meets_the_target():
-    """At every lattice size the other fingers move at most 1% of the hand, with the fingers'
-    roots held by the palm's group or with the palm part alone held (a finger then held to the
-    palm by the lattice only). The history (worst size, the roots held / the palm part alone):
-    node rotations 3.1 / 4.1%; one rotation per cell (2026-11-24) 2.0 / 2.4%, 7 and 5 of 10 sizes
-    within 1%; stiff branchings (2026-11-24) 0.81 / 0.82%, median 0.38 / 0.44%."""
-    drag, palm_only = character_sweep(), character_sweep(palm_part_only=True)
-    assert not np.allclose(drag, palm_only), palm_only  # the pose differs from the other sweep's
-    assert drag.max() <= 1.0, drag
-    assert palm_only.max() <= 1.0, palm_only
-    assert np.median(drag) <= 0.5 and np.median(palm_only) <= 0.55, (drag, palm_only)
-
-
-@CUDA
-def test_character_at_every_lattice_size_meets_the_target_on_cuda():
-    """The same sweep on the GPU's flip-flop (float, a fixed number of multigrid-preconditioned CG
-    steps per flip-flop): the stiff branchings' 300-fold contrast converges there as on the CPU
-    (H100, 2026-11-24: every size within 0.06 point of the CPU's; 6,000 cells: 0.62 against 0.56%)."""
-    drag = character_sweep(device="cuda")
-    assert drag.max() <= 1.0, drag
-    assert np.abs(drag - character_sweep()).max() <= 0.15, (drag, character_sweep())
+    assert character_sweep().max() <= 1.0, character_sweep()
+    assert character_sweep(palm_part_only=True).max() <= 1.0, character_sweep(palm_part_only=True)
 
 
 TURNED = (15.0, 30.0, 45.0)
@@ -156,23 +159,20 @@ def test_character_at_an_angle_to_the_grid_stays_within_the_measured_bounds():
     """The character turned 15, 30 and 45 degrees about the vertical, so that its hands lie at an
     angle to the lattice (as most characters' hands do), at the same 10 cell counts (the turned
     model's box is larger, so its cells are 4-7% larger): what the engine does today (2026-11-24,
-    stiff branchings: 16 of 30 within 1%, median 0.96%, worst 9.3%; one rotation per cell: 3 of
-    30, median 2.7%, worst 9.6%; 2026-11-23, node rotations, with separate parts told apart in a
-    cell's voxels: 1 of 30, median 3.2%, worst 9.8%; before, fingers a tenth of a cell apart at an
-    angle could fall into one piece of a cell: worst 21.6%, 5 sizes over 12%). A guard against
-    getting worse, not the target."""
+    one rotation per cell: 3 of 30 within 1%, median 2.7%, worst 9.6%; 2026-11-23, node rotations,
+    with separate parts told apart in a cell's voxels: 1 of 30 within 1%, median 3.2%, worst 9.8%;
+    before, fingers a tenth of a cell apart at an angle could fall into one piece of a cell: worst
+    21.6%, 5 sizes over 12%). What is left is the junction's cells reaching farther along the
+    fingers. A guard against getting worse, not the target."""
     for a in TURNED:  # the turn is real: the sweeps differ from the unturned one
         assert not np.allclose(character_sweep(turned=a), character_sweep()), a
-    assert_within(turned_sweeps(), median=1.1, worst=9.5, within_1pct=15)
+    assert_within(turned_sweeps(), median=3.0, worst=10.0, within_1pct=3)
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason="not met (2026-11-24): with the hand at an "
-                   "angle to the lattice the other fingers move up to 9.3% of the hand (14 of 30 "
-                   "sizes and angles over 1%, 4 of them over 3%: 45 degrees at 5,500, 6,000 and "
-                   "7,000 cells, 15 degrees at 4,500). Where the fingers leave the palm at an angle "
-                   "to the grid, nodes of the turned finger's cells are its neighbours' up to two "
-                   "cells past the roots, and the stiff branchings do not hold all of them there "
-                   "(docs/method.md, 'What splitting cannot separate')")
+                   "angle to the lattice the other fingers move up to 9.6% of the hand (27 of 30 "
+                   "sizes and angles over 1%): the cells where the fingers leave the palm reach "
+                   "farther along them; docs/method.md, 'What splitting cannot separate'")
 def test_character_at_an_angle_to_the_grid_meets_the_target():
     assert turned_sweeps().max() <= 1.0, turned_sweeps()
 

@@ -52,11 +52,6 @@ struct LatticeOptions {
   // separate parts closer (measured: beyond 1.55 sqrt(3) h / split_resolution; docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
-  // Copies where the solid branches (one copy joined across a face to several copies of the next
-  // cell: a palm's end with the roots of fingers 0.1 cell apart) are this many times stiffer, so
-  // that a finger turned about its root does not move the nodes its neighbours' roots share
-  // (docs/method.md, "Stiff branchings"). 1: as stiff as their material. In [1, 1e6].
-  double junction_stiffness = 300.0;
 };
 
 // Default target cell count when neither cells nor cell_size is given.
@@ -82,8 +77,7 @@ class Lattice {
   // piece's share of the cell's material (material voxels / split_resolution^3, at least one
   // voxel layer, 1 / split_resolution): a sliver of a finger that crosses a cell corner is as
   // stiff as the material it holds, not as a whole cell (the elasticity of Nesme et al. 2009).
-  // Cells kept whole, and every cell of a coarser level, weigh 1. Copies where the solid branches
-  // (branching_copies.h) are LatticeOptions::junction_stiffness times stiffer on top.
+  // Cells kept whole, and every cell of a coarser level, weigh 1.
   std::vector<double> cell_weight;
 
   // ------------------------------------------------------------------ nodes
@@ -102,9 +96,6 @@ class Lattice {
   // between two whole cells.
   std::vector<double> edge_weight;            // #E, parallel to edges
   std::vector<double> adj_weight;             // parallel to adj
-  // The sum of edge_weight as if the branchings were not stiffened: gamma's normalisation (the
-  // mean strain term), so that stiff branchings do not soften the rest of the lattice.
-  double plain_edge_weight_sum = 0.0;
   std::vector<int32_t> component;             // #N connected component id of each node
   int32_t num_components = 0;
   int32_t real_nodes = 0;                     // nodes [0, real_nodes) are real

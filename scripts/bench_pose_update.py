@@ -27,16 +27,14 @@ if n_major:
     groups = [np.flatnonzero(ang < -2.8), np.flatnonzero(np.abs(ang) < 0.17)]
     def pose(t):  # the second group lifted by t
         T = np.tile(np.eye(4), (2, 1, 1)); T[1, 2, 3] = t; return T
-else:  # the character's hand, one fingertip turned by 60 t degrees about its root
+else:  # the character's hand as the tests pin it, one fingertip turned by 60 t degrees about its root
+    import os
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(larap.__file__))), "tests", "python"))
+    from test_junctions import finger_pose  # this checkout's own pose
     V, F, parts = shapes.character()
-    root, held = parts["root_x"], np.flatnonzero(V[:, 0] <= parts["root_x"] - 0.005)
-    palm = np.intersect1d(held, parts["hand"])
-    groups = [np.setdiff1d(held, palm), palm] + [f[V[f, 0] >= 0.86] for f in parts["fingers"]]
+    groups = finger_pose(V, parts)[0]
     def pose(t):
-        T = np.tile(np.eye(4), (len(groups), 1, 1))
-        c, s = np.cos(np.radians(-60 * t)), np.sin(np.radians(-60 * t))
-        R = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]); p = np.array([root, 0.0, 1.42])
-        T[3, :3, :3] = R; T[3, :3, 3] = p - R @ p; return T
+        return finger_pose(V, parts, degrees=60.0 * t)[1]
 d = larap.Deformer(V, F, device=device, **({"cells": cells} if cells else {}))
 d.set_handle_groups(groups)
 out = np.empty((len(V), 3), np.float32)

@@ -376,6 +376,7 @@ class Solver:
         self.alpha = alpha
         A = sp.diags(alpha)
         M = self.geff * Lw + (self.B.T @ A @ self.B)
+        self.M = M  # the system matrix, for variants that add a fixed quadratic
         # components without handles stay at rest (as the engine does)
         self.solve_lin = spla.factorized(sp.csc_matrix(M))
         self.BtA = (self.B.T @ A).tocsr()

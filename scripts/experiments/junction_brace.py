@@ -51,8 +51,7 @@ class Braced(av.Solver):
         if R:
             I = np.repeat(np.arange(len(R)), 3); J = np.array(R).ravel(); W = np.tile([1.0, -2.0, 1.0], len(R))
             G = sp.csr_matrix((W, (I, J)), shape=(len(R), lat.nr))
-            D = sp.csr_matrix((np.concatenate([self.w, -self.w]), (np.concatenate([np.arange(len(self.i))] * 2), np.concatenate([self.i, self.k]))), shape=(len(self.i), lat.nr))
-            M = self.geff * (self.Dt @ D) + self.B.T @ sp.diags(alpha) @ self.B + mu * self.geff * (G.T @ G)
+            M = self.M + mu * self.geff * (G.T @ G)
             self.solve_lin = spla.factorized(sp.csc_matrix(M))
 
 def solver(d, V, groups, mu):

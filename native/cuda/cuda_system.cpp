@@ -31,7 +31,7 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   SpR Mh = handle_matrix(hs, n);  // B^T diag(alpha) B: the warm start's moments
   Mh.makeCompressed();
   SpR M = Mh;
-  if (!hs.glue.empty()) M += SpR(glue_matrix(hs, n));  // and the glue of carried parts
+  if (hs.has_ties()) M += SpR(tie_matrix(hs, n));  // and the glue of carried parts, the braces
   M.makeCompressed();
   A = SpR(A + M);
   A.makeCompressed();
@@ -86,7 +86,7 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   sys_.m_off = m_off_.upload(M.outerIndexPtr(), size_t(n) + 1, stream_);
   sys_.m_col = m_col_.upload(M.innerIndexPtr(), size_t(M.nonZeros()), stream_);
   sys_.m_val = m_val_.upload(M.valuePtr(), size_t(M.nonZeros()), stream_);
-  if (hs.glue.empty()) {  // the warm start's moments read M without the glue
+  if (!hs.has_ties()) {  // the warm start's moments read M without the glue and the braces
     moment_chunks_.m_off = sys_.m_off;
     moment_chunks_.m_col = sys_.m_col;
     moment_chunks_.m_val = sys_.m_val;

@@ -43,8 +43,8 @@ struct MomentChunks {
   const int* nodes = nullptr;
   int components = 0;
   const int* comp_chunk_off = nullptr;  // components + 1, into the chunks
-  // M = B^T diag(alpha) B alone, CSR in double: s.m_* when nothing is carried, else without the
-  // glue that s.m_* also holds (handle_system.h).
+  // M = B^T diag(alpha) B alone, CSR in double: s.m_* when there are no ties, else without the
+  // glue and braces that s.m_* also holds (handle_system.h).
   const int* m_off = nullptr;
   const int* m_col = nullptr;
   const double* m_val = nullptr;

@@ -50,8 +50,8 @@ struct System {
   const float* a_val = nullptr;
   const float* minv = nullptr;  // 1 / diag(A)
   // The handle term (handle_system.h): c^T M c - 2 c . H + K, M = B^T diag(alpha) B plus the
-  // glue of carried parts (glue_matrix) as CSR over all n nodes (rows of nodes no handle or
-  // glue reads are empty), in double: the term is a small difference of large sums near
+  // ties, the glue of carried parts and the junction braces (tie_matrix), as CSR over all n nodes
+  // (rows of nodes no handle or tie reads are empty), in double: the term is a small difference of large sums near
   // convergence, which float would lose. K (per pose, per lattice component) stays on the host.
   // Nothing here runs over handle rows.
   const int* m_off = nullptr;   // n + 1

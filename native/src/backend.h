@@ -5,14 +5,15 @@
 // j = 1..m with weights B (m by #N, 8 or 27 entries a row), row weights alpha and targets t.
 //   E(c', R) = gamma_eff * sum_c w_c sum_{edges (a,b) of c} |(c'_a - c'_b) - R_c (c_a - c_b)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
-//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2
+//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2 + beta * sum_{(a, b, c) braced} |c'_a - 2 c'_b + c'_c|^2
 // over the cell copies c (cell_terms.h), minimised by flip-flop: R_c the rotation fit of
 // S_c = sum_{edges of c} (c'_a - c'_b)(c_a - c_b)^T, then
-//   (2 gamma_eff L + M + mu G^T G + a I_anchored) c' = gamma_eff b + B^T alpha t + a c_anchored,
+//   (2 gamma_eff L + M + T + a I_anchored) c' = gamma_eff b + B^T alpha t + a c_anchored,
 //   b_i = sum_{copies c with corner i} w_c R_c s_ci (node_cells.h),   M = B^T diag(alpha) B,
-// L the graph Laplacian of the lattice edges with the weights w_ij = half their copies' w_c sum. A lattice component that holds no handle is carried
-// by a handled one it lies along, glued to it (G, carried_parts.h), or else anchored: held at
-// rest. A pose's targets reach the backend as H~ = B^T alpha t~
+// L the graph Laplacian of the lattice edges with the weights w_ij = half their copies' w_c sum,
+// T = mu G^T G + beta S^T S the ties (tie_matrix). A lattice component that holds no handle is
+// carried by a handled one it lies along, glued to it (G, carried_parts.h), or else anchored: held
+// at rest. The braces (S, junction_braces.h) hold straight the columns where the solid branches. A pose's targets reach the backend as H~ = B^T alpha t~
 // and K~ (handle_system.h), so nothing per pose costs in proportion to the handle rows.
 #pragma once
 #include <larap/binding.h>

@@ -82,7 +82,7 @@ class CpuBackend final : public Backend {
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     M_ = handle_matrix(hs, n);
-    G_ = glue_matrix(hs, n);  // the glue of carried parts (empty when nothing is carried)
+    G_ = tie_matrix(hs, n);  // the glue of carried parts and the junction braces (may be empty)
     A += M_ + G_;
     A.makeCompressed();
     llt_ = std::make_unique<Factor>();
@@ -202,7 +202,7 @@ class CpuBackend final : public Backend {
   }
 
   // Scaled total: node energies summed in a fixed order (deterministic) plus the handle term and
-  // the glue, c~^T (M + mu G^T G) c~ - 2 c~ . H~ + K~ (handle_system.h).
+  // the ties, c~^T (M + T) c~ - 2 c~ . H~ + K~ (handle_system.h).
   double finish_energy() {
     double arap = 0.0;
     for (double e : cell_energy_) arap += e;
@@ -251,7 +251,7 @@ class CpuBackend final : public Backend {
   std::vector<double> cell_energy_;    // w_c e_c per cell copy
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
-  Eigen::SparseMatrix<double> G_;  // mu G^T G, the glue of carried parts (the system and the energy)
+  Eigen::SparseMatrix<double> G_;  // the ties: glue and braces (the system and the energy)
   RowMatrixX3d H_;                 // H~ of the current targets
   std::vector<double> K_;          // K~ per component
   bool targets_set_ = false;

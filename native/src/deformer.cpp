@@ -13,6 +13,7 @@
 #include "backend.h"
 #include "handle_system.h"
 #include "hierarchy.h"
+#include "junction_braces.h"
 #include "junction_stencils.h"
 #include "warm_start.h"
 
@@ -53,6 +54,13 @@ void check_gamma(double gamma) {
                        " (the default is " + number_text(DeformerOptions{}.gamma) + "), got " + number_text(gamma));
 }
 
+void check_junction_brace(double brace) {
+  if (!(brace >= 0.0 && brace <= kMaxJunctionBrace))
+    throw InvalidInput("junction_brace must be between 0 and " + number_text(kMaxJunctionBrace) + " (the default is " +
+                       number_text(DeformerOptions{}.junction_brace) + "; 0 turns the braces off), got " +
+                       number_text(brace));
+}
+
 void check_levels(int levels) {
   if (levels < 1 || levels > kMaxLevels)
     throw InvalidInput("levels must be between 1 and " + std::to_string(kMaxLevels) + ", got " +
@@ -67,6 +75,7 @@ struct Deformer::Impl {
   Lattice lattice;
   WeightKind weights;
   double gamma;
+  double brace;           // junction braces' weight (junction_braces.h)
   double diagonal = 1.0;  // bounding-box diagonal of the rest mesh
   double size = 1.0;      // radius of gyration of the rest vertices (the gamma's length scale)
   mutable std::unique_ptr<Binding> bindings[2];  // per weight kind, made on first use
@@ -121,9 +130,11 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   Impl& d = *impl_;
   check_gamma(options.gamma);
   check_levels(options.levels);
+  check_junction_brace(options.junction_brace);
   d.mesh = std::move(mesh);
   d.weights = options.weights;
   d.gamma = options.gamma;
+  d.brace = options.junction_brace;
   validate_mesh(d.mesh);
   auto t0 = Clock::now();
   d.lattice = Lattice::build(d.mesh, options.lattice);
@@ -290,10 +301,10 @@ void Deformer::Impl::prepare_handles() {
   std::vector<int32_t> ids(size_t(mh) * s);
   std::vector<double> w(ids.size());
   for (int64_t j = 0; j < mh; ++j) b.weights_of(lattice, spec.vertices[j], &ids[j * s], &w[j * s]);
-  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, size, origin);
+  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, brace, size, origin);
   fine_anchored = hs.anchored;
   fine_group_components = group_components(hs);
-  hierarchy.set_handles(spec, gamma, size, origin);
+  hierarchy.set_handles(spec, gamma, brace, size, origin);
   if (hs.m > 0) {
     try {
       backend->set_handles(hs);
@@ -546,6 +557,11 @@ const std::vector<int64_t>& Deformer::handles() const { return impl_->spec.verti
 int64_t Deformer::num_groups() const { return int64_t(impl_->spec.group_offsets.size()) - 1; }
 WeightKind Deformer::weights() const { return impl_->weights; }
 double Deformer::gamma() const { return impl_->gamma; }
+double Deformer::junction_brace() const { return impl_->brace; }
+std::vector<std::array<int32_t, 3>> Deformer::junction_braces() const {
+  if (!(impl_->brace > 0.0)) return {};
+  return larap::junction_braces(impl_->lattice);
+}
 double Deformer::diagonal() const { return impl_->diagonal; }
 std::string Deformer::device() const { return impl_->backend->name(); }
 const std::string& Deformer::fallback_reason() const { return impl_->fallback; }

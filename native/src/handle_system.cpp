@@ -7,13 +7,14 @@
 #include <limits>
 
 #include "carried_parts.h"
+#include "junction_braces.h"
 #include "parallel.h"
 
 namespace larap {
 
 HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int32_t> ids,
                                 std::vector<double> weights, const HandleSpec& spec, double gamma,
-                                double size, const Eigen::Vector3d& origin) {
+                                double brace, double size, const Eigen::Vector3d& origin) {
   const std::vector<double>& omega = spec.omega;
   const std::vector<double>& group_weights = spec.group_weights;
   const RowMatrixX3d& rest = spec.rest;
@@ -69,6 +70,10 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   hs.glue = std::move(carried.glue);
   hs.anchor_weight = 2.0 * hs.gamma_eff * mean_edge;
   hs.glue_weight = kGlue * hs.gamma_eff * mean_edge;
+  if (brace > 0.0) {
+    hs.braces = junction_braces(lat);
+    hs.brace_weight = brace * hs.gamma_eff * mean_edge;
+  }
 
   // q = B^T alpha; per (node, group) q_g[i] and P_g[i], accumulated group by group in a dense
   // scratch row over the nodes the group touches, then ordered by node (counting sort); per
@@ -214,9 +219,9 @@ std::vector<std::array<int32_t, 2>> group_components(const HandleSystem& hs) {
   return out;
 }
 
-Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_nodes) {
+Eigen::SparseMatrix<double> tie_matrix(const HandleSystem& hs, int64_t num_nodes) {
   std::vector<Eigen::Triplet<double>> trip;
-  trip.reserve(4 * hs.glue.size());
+  trip.reserve(4 * hs.glue.size() + 9 * hs.braces.size());
   const double mu = hs.glue_weight;
   for (const auto& [a, b] : hs.glue) {
     trip.emplace_back(a, a, mu);
@@ -224,6 +229,13 @@ Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_node
     trip.emplace_back(a, b, -mu);
     trip.emplace_back(b, a, -mu);
   }
+  const double beta = hs.brace_weight;
+  if (beta > 0.0)
+    for (const auto& s : hs.braces) {  // beta s s^T, s = (1, -2, 1) on (a, b, c)
+      constexpr double coef[3] = {1.0, -2.0, 1.0};
+      for (int u = 0; u < 3; ++u)
+        for (int v = 0; v < 3; ++v) trip.emplace_back(s[u], s[v], beta * coef[u] * coef[v]);
+    }
   Eigen::SparseMatrix<double> G(num_nodes, num_nodes);
   G.setFromTriplets(trip.begin(), trip.end());
   return G;

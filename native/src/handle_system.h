@@ -1,12 +1,13 @@
 // The handle term of the energy, as the backends see it: which lattice nodes each handle vertex
 // reads (the rows of B), how much each row pulls (alpha), the handle groups with what a pose
 // needs of them precomputed, how strongly the ARAP term weighs against the handles (gamma_eff),
-// which lattice components without a handle follow a handled one (carried_parts.h) and which
-// are held at rest because nothing carries them.
+// which lattice components without a handle follow a handled one (carried_parts.h), which are
+// held at rest because nothing carries them, and the braces where the solid branches
+// (junction_braces.h).
 //
 //   E(c', R) = gamma_eff * sum_c w_c sum_{edges (a,b) of c} |(c'_a - c'_b) - R_c (c_a - c_b)|^2
 //            + sum_j alpha_j |B_j c' - t_j|^2 + a * sum_{i anchored} |c'_i - c_i|^2
-//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2
+//            + mu * sum_{(i, k) glued} |c'_i - c'_k|^2 + beta * sum_{(a, b, c) braced} |c'_a - 2 c'_b + c'_c|^2
 //
 // Rows come in groups g = 1..G (a vertex group driven by one transform). Row j of group g pulls
 // alpha_j = (w_g / G) * omega_j / sum_{k in g} omega_k: every group pulls with its own weight w_g
@@ -16,8 +17,8 @@
 // (w_c: the copies' weights, 1 except for copies of split cells; lattice.h.)
 // Scale-free gamma (docs/method.md): E = gamma * s^2 * wmean_(c, edge)(|r|^2 / h^2) + handle term,
 // with s the radius of gyration of the rest vertices, so gamma_eff = gamma * s^2 / (h^2 * 12 sum_c
-// w_c) (= twice the lattice's edge weights' sum). The anchors and the glue weigh per unit of the
-// mean edge weight, as stiff against the lattice as with the paper's node energy. The same
+// w_c) (= twice the lattice's edge weights' sum). The anchors, the glue and the braces weigh per
+// unit of the mean edge weight, as stiff against the lattice as with the paper's node energy. The same
 // definition on every level of a hierarchy makes the levels solve one problem, up to the fine
 // level's weights (coarser levels weigh every cell 1: they only give the fine level its starting
 // pose).
@@ -32,8 +33,9 @@
 //   H~_i = sum_g P_g[i] A_g^T + q_g[i] b~_g^T,   P_g[i] = sum_{j in g} alpha_j B_ji v~_j^T,
 //   q_g[i] = sum_{j in g} alpha_j B_ji,           b~_g = A_g origin + b_g - origin,
 // and K~ from each group's moments (s0, s1, S2) of alpha v~: both O(nodes the groups touch).
-// The glue adds mu G^T G to M in the system and the energy (glue_matrix), and nothing to H~ or
-// K~; the warm start's moments use M alone.
+// The glue and the braces (the *ties*: fixed quadratics, zero under every affine map) add
+// mu G^T G + beta S^T S to M in the system and the energy (tie_matrix), and nothing to H~ or K~;
+// the warm start's moments use M alone.
 #pragma once
 #include <larap/lattice.h>
 
@@ -77,11 +79,14 @@ struct HandleSystem {
   double anchor_weight = 0.0;          // a
   std::vector<std::array<int32_t, 2>> glue;  // (carried node, carrier node) pairs
   double glue_weight = 0.0;            // mu
+  std::vector<std::array<int32_t, 3>> braces;  // (a, b, c) columns of branching copies
+  double brace_weight = 0.0;           // beta
   std::vector<int32_t> node_component; // #N: the component whose warm start a node takes
   double energy_scale = 1.0;           // reported energy = E * energy_scale (= 1 / s^2)
   int32_t num_components = 0;          // of the lattice
 
   int64_t num_groups() const { return static_cast<int64_t>(group_offsets.size()) - 1; }
+  bool has_ties() const { return !glue.empty() || (!braces.empty() && brace_weight > 0.0); }
 };
 
 // The handles as the user gave them, independent of any lattice.
@@ -94,11 +99,12 @@ struct HandleSpec {
 };
 
 // The handle system of `lattice` for rows (ids, weights) of `stencil` entries each (the handle
-// vertices of `spec` bound to this lattice); gamma is the user's scale-free gamma and `size`
-// the model's length scale s; `origin` centres the handle sums.
+// vertices of `spec` bound to this lattice); gamma is the user's scale-free gamma, `brace` the
+// junction braces' weight per unit of gamma_eff times the mean edge weight (junction_braces.h;
+// 0: none) and `size` the model's length scale s; `origin` centres the handle sums.
 HandleSystem make_handle_system(const Lattice& lattice, int stencil, std::vector<int32_t> ids,
                                 std::vector<double> weights, const HandleSpec& spec, double gamma,
-                                double size, const Eigen::Vector3d& origin);
+                                double brace, double size, const Eigen::Vector3d& origin);
 
 // What one pose asks of the handles: a target per row, or one affine map per group.
 struct HandleTargets {
@@ -125,9 +131,9 @@ std::vector<std::array<int32_t, 2>> group_components(const HandleSystem& hs);
 
 // M = B^T diag(alpha) B (#N by #N).
 Eigen::SparseMatrix<double> handle_matrix(const HandleSystem& hs, int64_t num_nodes);
-// mu G^T G: the glue of carried parts (empty when nothing is carried). The system and the energy
-// use M + mu G^T G, the warm start's moments M alone.
-Eigen::SparseMatrix<double> glue_matrix(const HandleSystem& hs, int64_t num_nodes);
+// mu G^T G + beta S^T S: the glue of carried parts and the junction braces (empty without ties).
+// The system and the energy use M plus this, the warm start's moments M alone.
+Eigen::SparseMatrix<double> tie_matrix(const HandleSystem& hs, int64_t num_nodes);
 
 // Triplets of 2 gamma_eff L + a I_anchored (the ARAP part of the system matrix), shared by the
 // backends so that both assemble exactly the same system.

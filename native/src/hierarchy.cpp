@@ -73,7 +73,8 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
   }
 }
 
-void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin) {
+void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double brace, double size,
+                            const Eigen::Vector3d& origin) {
   const int64_t m = spec.rest.rows();
   for (auto& lv : levels_) {
     lv.anchored.clear();
@@ -84,7 +85,7 @@ void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size, c
     std::vector<int32_t> ids(size_t(m) * 8);
     std::vector<double> w(ids.size());
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
-    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, size, origin);
+    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, brace, size, origin);
     lv.anchored = hs.anchored;
     lv.group_components = group_components(hs);
     lv.backend->set_handles(hs);

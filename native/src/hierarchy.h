@@ -40,7 +40,7 @@ class Hierarchy {
   int64_t num_nodes(int level) const;
 
   // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level.
-  void set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin);
+  void set_handles(const HandleSpec& spec, double gamma, double brace, double size, const Eigen::Vector3d& origin);
 
   // Every coarse level back to its rest pose.
   void reset();

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from . import shapes
-from .deformer import DEFAULT_GAMMA, Deformer, available_devices
+from .deformer import DEFAULT_GAMMA, DEFAULT_JUNCTION_BRACE, Deformer, available_devices
 from .handles import HandleError, flatten, load_handles, parse_handles
 from .io import load_mesh, save_mesh
 
@@ -41,6 +41,9 @@ def _add_solver_args(p):
                    help="keep the plain lattice: do not keep a cell once per connected piece inside it")
     p.add_argument("--split-resolution", type=int, default=24,
                    help="voxels per cell edge that decide the pieces of a cell (default 24)")
+    p.add_argument("--junction-brace", type=float, default=DEFAULT_JUNCTION_BRACE,
+                   help="weight of the braces where the solid branches inside a cell "
+                        f"(default {DEFAULT_JUNCTION_BRACE:g}; 0: none)")
 
 
 def _deform(V, F, groups, args, out_path, template=None):
@@ -48,7 +51,8 @@ def _deform(V, F, groups, args, out_path, template=None):
     t0 = time.perf_counter()
     d = Deformer(V, F, cells=args.cells, cell_size=args.cell_size, weights=args.weights,
                  gamma=args.gamma, device=args.device, levels=args.levels,
-                 split_cells=args.split_cells, split_resolution=args.split_resolution)
+                 split_cells=args.split_cells, split_resolution=args.split_resolution,
+                 junction_brace=args.junction_brace)
     # Each group of the file is a handle group; one transform per group when every group has
     # one, else the same targets vertex by vertex.
     d.set_handle_groups([g.vertices for g in groups], weights=[g.weight for g in groups])

@@ -13,6 +13,7 @@ from .io import faces_to_csr
 
 DEFAULT_GAMMA = _core.DEFAULT_GAMMA  # the engine's default stiffness (native/include/larap/deformer.h)
 GAMMA_RANGE = tuple(_core.GAMMA_RANGE)  # (least, largest) gamma the engine accepts: (1e-08, 1e+08)
+DEFAULT_JUNCTION_BRACE = _core.DEFAULT_JUNCTION_BRACE  # braces where the solid branches (docs/method.md)
 
 
 def available_devices() -> list[str]:
@@ -143,13 +144,19 @@ class Deformer:
         split_resolution along an axis to about 2.7 / split_resolution at the worst angle (0.05
         to 0.11 cell at 24; docs/method.md). Each analysed cell takes split_resolution^3 bytes
         while the lattice is built, a few times more where several parts meet in it.
+    junction_brace: where the solid branches inside a cell (fingers leaving a palm, tines leaving
+        a fork's joint, closer than a cell), the lattice cell that holds every root is braced: its
+        node columns along the branching are held straight, so a turned finger does not tilt its
+        neighbours' roots. The weight, per unit of the lattice's stiffness (default
+        DEFAULT_JUNCTION_BRACE = 50, between 0 and 1e4): zero under every affine map, so rigid
+        and affine poses stay exact; 0 turns the braces off.
     max_bytes: memory the lattice's grid and cell splitting's voxels may take (default half the
         machine's memory); over it, MemoryError says what to lower, before allocating.
     """
 
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
                  weights="trilinear", gamma=DEFAULT_GAMMA, device="cpu", max_bytes=None, levels=1,
-                 split_cells=True, split_resolution=24):
+                 split_cells=True, split_resolution=24, junction_brace=DEFAULT_JUNCTION_BRACE):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
@@ -163,7 +170,8 @@ class Deformer:
         self._core = _core.Deformer(V, offsets, indices, n_cells, size, str(weights), _real("gamma", gamma),
                                     str(device), limit, _integer("levels", levels),
                                     _boolean("split_cells", split_cells),
-                                    _integer("split_resolution", split_resolution))
+                                    _integer("split_resolution", split_resolution),
+                                    _real("junction_brace", junction_brace))
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()
@@ -314,6 +322,8 @@ class Deformer:
     handles = property(lambda self: self._core.handles, doc="handle vertex ids (1-D int64)")
     diagonal = property(lambda self: self._core.diagonal, doc="bounding-box diagonal of the mesh")
     levels = property(lambda self: self._core.levels, doc="lattice levels built (coarse to fine)")
+    junction_brace = property(lambda self: self._core.junction_brace,
+                              doc="weight of the braces where the solid branches (0: none)")
 
     @property
     def stats(self) -> dict:
@@ -360,6 +370,13 @@ class Deformer:
         the sum of cell_weights over the cells (copies) it is an edge of, since the energy sums
         each cell's 12 edges with the cell's own rotation (2 inside a plain lattice)."""
         return self._core.lattice_edge_weights()
+
+    def junction_braces(self) -> np.ndarray:
+        """(K, 3) lattice node ids (a, b, c) of the braced columns: where the solid branches inside a
+        cell, each corner column of the cell that holds every branch's root, from one cell on the
+        trunk's side (a) through the cell's near (b) and far (c) face; the brace keeps a - 2 b + c
+        at zero. Empty when junction_brace is 0 or nothing branches."""
+        return self._core.junction_braces()
 
     def cell_weights(self) -> np.ndarray:
         """(C,) stiffness of each lattice cell (order of cell_nodes): 1 for a cell kept whole; a

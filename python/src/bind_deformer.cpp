@@ -58,7 +58,7 @@ py::array_t<double> to_numpy(const RowMatrixX3d& M) {
 std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels,
-                                      bool split_cells, int split_resolution) {
+                                      bool split_cells, int split_resolution, double junction_brace) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -76,6 +76,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   opt.gamma = gamma;
   opt.device = device;
   opt.levels = levels;
+  opt.junction_brace = junction_brace;
   py::gil_scoped_release release;
   return std::make_unique<PyDeformer>(std::move(mesh), opt);
 }
@@ -201,7 +202,8 @@ void bind_deformer(py::module_& m) {
       .def(py::init(&make), py::arg("vertices"), py::arg("face_offsets"), py::arg("face_indices"),
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
            py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
-           py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24)
+           py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24,
+           py::arg("junction_brace") = larap::DeformerOptions{}.junction_brace)
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
@@ -265,6 +267,7 @@ void bind_deformer(py::module_& m) {
       .def_property_readonly("cell_size", [](const PyDeformer& self) { return self.engine.lattice().h; })
       .def_property_readonly("diagonal", [](const PyDeformer& self) { return self.engine.diagonal(); })
       .def_property_readonly("levels", [](const PyDeformer& self) { return self.engine.levels(); })
+      .def_property_readonly("junction_brace", [](const PyDeformer& self) { return self.engine.junction_brace(); })
       .def_property_readonly("device", [](const PyDeformer& self) { return self.engine.device(); })
       .def_property_readonly("fallback_reason", [](const PyDeformer& self) { return self.engine.fallback_reason(); })
       .def_property_readonly("handles", [](const PyDeformer& self) {
@@ -302,6 +305,12 @@ void bind_deformer(py::module_& m) {
         const auto& lat = self.engine.lattice();
         py::array_t<double> a(py::ssize_t(lat.edges.size()));
         for (size_t k = 0; k < lat.edges.size(); ++k) a.mutable_at(k) = lat.edge_weight[k];
+        return a;
+      })
+      .def("junction_braces", [](const PyDeformer& self) {
+        const auto b = self.engine.junction_braces();
+        py::array_t<int32_t> a({py::ssize_t(b.size()), py::ssize_t(3)});
+        if (!b.empty()) std::memcpy(a.mutable_data(), b.data(), sizeof(int32_t) * 3 * b.size());
         return a;
       })
       .def("cell_weights", [](const PyDeformer& self) {
@@ -388,4 +397,6 @@ void bind_deformer(py::module_& m) {
   m.attr("DEFAULT_GAMMA") = larap::DeformerOptions{}.gamma;  // the one place the default lives
   m.attr("MAX_ITERATIONS") = larap::kMaxIterations;
   m.attr("GAMMA_RANGE") = py::make_tuple(larap::kMinGamma, larap::kMaxGamma);
+  m.attr("DEFAULT_JUNCTION_BRACE") = larap::DeformerOptions{}.junction_brace;
+  m.attr("MAX_JUNCTION_BRACE") = larap::kMaxJunctionBrace;
 }

@@ -23,6 +23,7 @@
 #include <larap/mesh.h>
 #include <larap/solve_stats.h>
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -37,6 +38,7 @@ constexpr int kMaxIterations = 100000;    // solve(..., iterations) is in [0, kM
 // within, at most 2e-7), or not positive definite at all.
 constexpr double kMinGamma = 1e-8;
 constexpr double kMaxGamma = 1e8;
+constexpr double kMaxJunctionBrace = 1e4;  // DeformerOptions::junction_brace is in [0, kMaxJunctionBrace]
 
 // ------------------------------------------------------------------------------------ options
 struct DeformerOptions {
@@ -45,6 +47,10 @@ struct DeformerOptions {
   double gamma = 0.03;                          // rigidity, scale-free ([kMinGamma, kMaxGamma]; docs/method.md)
   std::string device = "cpu";                   // "cpu" | "cuda" | "auto"
   int levels = 1;                               // lattice levels solved coarse to fine; 1 = fine only
+  // Braces where the solid branches (a palm's end holding every finger's root, a fork's joint):
+  // weight per unit of the lattice's stiffness, [0, kMaxJunctionBrace]; 0 = none (docs/method.md,
+  // "Junction braces").
+  double junction_brace = 50.0;
 };
 
 class Deformer {
@@ -111,6 +117,10 @@ class Deformer {
   int64_t num_groups() const;              // handle groups (set_handles: one per vertex)
   WeightKind weights() const;
   double gamma() const;
+  double junction_brace() const;
+  // The braced columns (a, b, c) of the fine lattice's real nodes, held straight by junction_brace
+  // where the solid branches; empty when junction_brace is 0 or nothing branches.
+  std::vector<std::array<int32_t, 3>> junction_braces() const;
   double diagonal() const;                 // bounding-box diagonal of the rest mesh
   std::string device() const;              // the backend that runs: "cpu" or "cuda"
   const std::string& fallback_reason() const;  // why device "auto" runs on the CPU (else empty)

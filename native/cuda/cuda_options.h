@@ -44,8 +44,8 @@ enum class CopyBack {
 
 struct CudaOptions {
   Solver solver = Solver::Multigrid;  // LARAP_CUDA_SOLVER = mg | pcg | cheby | jacobi
-  // Inner solver iterations per flip-flop, 1..1000; 0 = automatic: mg 1 with two levels whose
-  // coarse level is 2x2x2 aggregates, else 2; the experiments 8.   LARAP_CUDA_INNER
+  // Inner solver iterations per flip-flop, 1..1000; 0 = automatic: mg 2 (1 with two levels of
+  // 2x2x2 aggregates until 2026-11-24: it lags on large moves); the experiments 8.  LARAP_CUDA_INNER
   int inner = 0;
   int mg_coarse_max = 1536;  // most nodes of mg's dense coarsest level, 1..8192  LARAP_CUDA_MG_COARSE
   // mg levels: 0 = automatic (2 when the 2x2x2 aggregates are at most mg_coarse_max nodes,

@@ -160,14 +160,11 @@ void CudaBackend::upload_moment_chunks(const HandleSystem& hs) {
 }
 
 void CudaBackend::upload_multigrid(const cuda::Multigrid& mg) {
-  // Default inner iterations: with 2x2x2 aggregates and a dense inverse of them (two levels)
-  // one PCG step per flip-flop reaches quality sooner than two (more flip-flops, each cheaper);
-  // coarser two-level and three-level: two (one needs 2-3x the flip-flops; docs/results-gpu.md).
-  if (opt_.inner == 0 && !mg.three_levels && mg.shift == 1 && inner_ != 1) {
-    inner_ = 1;
-    sys_.inner = 1;
-    graph_.reset();
-  }
+  // Default inner iterations: two PCG steps per flip-flop on every hierarchy. One step with the
+  // exact 2x2x2 coarse solve was the default until 2026-11-24 (it reached a small pose's quality
+  // in fewer flip-flop costs), but a large move solved at once lagged: a hand bent 90 degrees at
+  // the wrist left its fingers 4.7% of the hand off the rigid turn after 30 flip-flops (two steps
+  // and the CPU: 0.07%; docs/cuda.md, "Options").
   sys_.nc = mg.nc;
   sys_.agg = agg_.upload(mg.agg.data(), mg.agg.size(), stream_);
   sys_.rc = rc_.reserve(size_t(inner_) * mg.nc);

@@ -73,19 +73,23 @@ def test_braces_change_the_pose_only_where_the_solid_branches():
     assert np.array_equal(out[0], out[1])
 
 
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("weights", ["trilinear", "bspline"])
 @pytest.mark.parametrize("levels", [1, 3])
-def test_a_hand_bent_at_the_wrist_keeps_its_fingers_rigid(weights, levels):
+def test_a_hand_bent_at_the_wrist_keeps_its_fingers_rigid(weights, levels, device):
     """The palm's and the fingertips' groups turned 90 degrees about the wrist, the body held: the
-    fingers follow the rigid turn within 0.5% of the hand, solved at once and dragged in 12 steps
-    of 5 flip-flops (2026-11-24: 0.22-0.29%; 0.07-0.17% without braces; stiff branching cells:
-    10.2% at once, 9.7% dragged)."""
+    fingers follow the rigid turn within 0.5% of the hand, solved at once (30 flip-flops) and
+    dragged in 12 steps (2026-11-24: 0.22-0.29%; 0.07-0.17% without braces; stiff branching cells:
+    10.2% at once, 9.7% dragged). The CPU drags with 5 flip-flops a step; CUDA with 20, since its
+    global step is two inexact CG steps: with 5 a step it lags 2.4% with or without braces (H100,
+    2026-11-24; 0.07-0.28% with 20), and with one CG step it lagged 4.7% even when solved at once
+    (the default before 2026-11-24)."""
     V, F, parts = shapes.character()
     groups, _ = finger_pose(V, parts)
     size = hand_size(V, parts)
     wrist = V[parts["hand"], 0].min() + 0.02
     fingers = np.concatenate(parts["fingers"])
-    d = larap.Deformer(V, F, weights=weights, levels=levels)
+    d = larap.Deformer(V, F, weights=weights, levels=levels, device=device)
     assert len(d.junction_braces()) > 0
     d.set_handle_groups(groups)
     for steps in (1, 12):
@@ -93,6 +97,7 @@ def test_a_hand_bent_at_the_wrist_keeps_its_fingers_rigid(weights, levels):
         for k in range(1, steps + 1):
             R = affine(rotation([0, 1, 0], -90.0 * k / steps), pivot=(wrist, 0.0, 1.42))
             X = d.solve(transforms=np.stack([np.eye(4)] + [R] * (len(groups) - 1)),
-                        iterations=30 if steps == 1 else 5)
+                        iterations=30 if steps == 1 else (5 if d.device == "cpu" else 20))
         off = np.linalg.norm(X[fingers] - (V[fingers] @ R[:3, :3].T + R[:3, 3]), axis=1).max()
+        print(f"{device} {weights} levels {levels} steps {steps}: {100 * off / size:.3f}%")
         assert off <= 0.005 * size, (steps, off / size)

@@ -43,14 +43,24 @@ std::vector<std::array<int32_t, 3>> junction_braces(const Lattice& lat) {
         if (back < 0) continue;
         const int32_t nb = lat.cell_copies(z.x(), z.y(), z.z());
         const auto& mine = lat.cell_nodes[size_t(c)];
-        for (int32_t d = back; d < back + nb; ++d) {
-          if (!share_face(lat, int32_t(c), d, axis, 1 - side)) continue;
-          const auto& theirs = lat.cell_nodes[size_t(d)];
-          // q: a corner of c's near face; d's corner q is the node one cell farther from the
-          // branching face, on the same column.
+        // Exactly one trunk copy: a copy that branches on both sides (an X) would otherwise tie
+        // the branches behind it to one another through its columns.
+        int32_t trunk = -1, trunks = 0;
+        for (int32_t d = back; d < back + nb; ++d)
+          if (share_face(lat, int32_t(c), d, axis, 1 - side)) {
+            trunk = d;
+            ++trunks;
+          }
+        if (trunks == 1) {
+          const auto& theirs = lat.cell_nodes[size_t(trunk)];
+          // q: a corner of c's near face; the trunk's corner q is the node one cell farther from
+          // the branching face, on the same column.
           for (int q = 0; q < 8; ++q)
-            if (((q >> axis) & 1) != side)
-              per_cell[size_t(c)].push_back({theirs[q], mine[q], mine[q ^ (1 << axis)]});
+            if (((q >> axis) & 1) != side) {
+              std::array<int32_t, 3> s{theirs[q], mine[q], mine[q ^ (1 << axis)]};
+              if (s[0] > s[2]) std::swap(s[0], s[2]);  // one orientation: a column braced twice is one brace
+              per_cell[size_t(c)].push_back(s);
+            }
         }
       }
   }, 1024);

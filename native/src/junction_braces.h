@@ -30,8 +30,9 @@ namespace larap {
 // plain lattice (mean edge weight 2), where the reference solver measured it
 // (scripts/experiments/junction_brace.py: 100 and 1000 give the same drag).
 
-// The braces (a, b, c) of `lattice`'s branching copies, sorted and without repeats; real nodes
-// only. Only copies next to a split cell can branch: a plain lattice has none.
+// The braces (a, b, c) of `lattice`'s branching copies, with a < c (the end on the trunk's side
+// may be either), sorted and without repeats; real nodes only. A copy braces its columns only
+// when exactly one copy shares its face on the trunk's side. Only copies next to a split cell can branch: a plain lattice has none.
 std::vector<std::array<int32_t, 3>> junction_braces(const Lattice& lattice);
 
 }  // namespace larap

@@ -373,9 +373,9 @@ class Deformer:
 
     def junction_braces(self) -> np.ndarray:
         """(K, 3) lattice node ids (a, b, c) of the braced columns: where the solid branches inside a
-        cell, each corner column of the cell that holds every branch's root, from one cell on the
-        trunk's side (a) through the cell's near (b) and far (c) face; the brace keeps a - 2 b + c
-        at zero. Empty when junction_brace is 0 or nothing branches."""
+        cell, each corner column of the cell that holds every branch's root, through three
+        consecutive nodes (one cell on the trunk's side, the cell's near and its far face; a < c,
+        so either end may be the trunk's); the brace keeps a - 2 b + c at zero. Empty when junction_brace is 0 or nothing branches."""
         return self._core.junction_braces()
 
     def cell_weights(self) -> np.ndarray:

@@ -66,9 +66,16 @@ TEST(JunctionBraces, TheBlocksEndIsBracedAlongItsFourCornerColumns) {
   const auto braces = junction_braces(lat);
   ASSERT_EQ(braces.size(), 4u);
   const int32_t above = lat.cell_at(up.x(), up.y(), up.z());
-  for (const auto& [a, b, c] : braces) {
+  const int32_t below = lat.cell_at(end.x(), end.y(), end.z() - 1);
+  ASSERT_EQ(lat.cell_copies(end.x(), end.y(), end.z() - 1), 1);
+  for (auto [a, b, c] : braces) {
+    ASSERT_LT(a, c);
     for (int32_t i : {a, b, c}) ASSERT_LT(i, lat.num_real_nodes());
-    // A straight column along z through the block's end: below it, its near and its far face.
+    if (lat.node_coords[size_t(a)].z() > lat.node_coords[size_t(c)].z()) std::swap(a, c);
+    // A straight column along z through the block's end: below it (a corner of the block's copy
+    // below), its near and its far face.
+    const auto& trunk = lat.cell_nodes[size_t(below)];
+    EXPECT_NE(std::find(trunk.begin(), trunk.end(), a), trunk.end());
     const Eigen::Vector3i pa = lat.node_coords[size_t(a)], pb = lat.node_coords[size_t(b)], pc = lat.node_coords[size_t(c)];
     EXPECT_EQ(pb - pa, Eigen::Vector3i(0, 0, 1));
     EXPECT_EQ(pc - pb, Eigen::Vector3i(0, 0, 1));
@@ -80,6 +87,26 @@ TEST(JunctionBraces, TheBlocksEndIsBracedAlongItsFourCornerColumns) {
       const auto& n = lat.cell_nodes[size_t(d)];
       EXPECT_NE(std::find(n.begin(), n.end(), c), n.end()) << "copy " << d;
     }
+  }
+}
+
+TEST(JunctionBraces, SlabsHangingBelowABlockAreBracedTheOtherWayRound) {
+  // The same fork upside down: the block above, the slabs leaving its end downwards (the branching
+  // copy branches towards -z; its trunk is above).
+  const PolygonMesh m = gen::concat({gen::point({0, 0, 0}), gen::box({1.1, 1.1, 2.5}, {1.9, 1.9, 3.9}),
+                                     gen::box({1.1, 1.1, 0.1}, {1.9, 1.45, 2.7}), gen::box({1.1, 1.55, 0.1}, {1.9, 1.9, 2.7})});
+  const Lattice lat = build(m, true);
+  const Eigen::Vector3i end = cell_of_point(lat, {1.5, 1.5, 2.6});
+  ASSERT_EQ(lat.cell_copies(end.x(), end.y(), end.z()), 1);
+  ASSERT_EQ(lat.cell_copies(end.x(), end.y(), end.z() - 1), 2);
+  const auto braces = junction_braces(lat);
+  ASSERT_EQ(braces.size(), 4u);
+  for (auto [a, b, c] : braces) {
+    if (lat.node_coords[size_t(a)].z() < lat.node_coords[size_t(c)].z()) std::swap(a, c);
+    // a on the trunk's side (above), b on the face the branching copy shares with it, c below.
+    EXPECT_EQ(lat.node_coords[size_t(a)].z(), end.z() + 2);
+    EXPECT_EQ(lat.node_coords[size_t(b)].z(), end.z() + 1);
+    EXPECT_EQ(lat.node_coords[size_t(c)].z(), end.z());
   }
 }
 

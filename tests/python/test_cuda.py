@@ -259,7 +259,7 @@ def test_auto_picks_cuda_when_present():
 
 
 @need_cuda
-@pytest.mark.parametrize("solver,inner", [("pcg", 8), ("mg", 2), ("mg", 6)])
+@pytest.mark.parametrize("solver,inner", [("pcg", 8), ("mg", 1), ("mg", 2), ("mg", 6)])
 def test_solvers_agree_with_cpu(solver, inner, monkeypatch):
     """Every LARAP_CUDA_SOLVER choice converges to the CPU result (docs/cuda.md, Options;
     pcg is an experiment: only with LARAP_CUDA_EXPERIMENTS)."""

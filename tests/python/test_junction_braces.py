@@ -26,6 +26,7 @@ def test_the_characters_palm_end_is_braced_and_zero_turns_it_off():
     B = d.junction_braces()
     assert B.shape[1] == 3 and len(B) > 0
     P = d.lattice_rest()
+    assert np.all(B[:, 0] < B[:, 2]) and len(np.unique(B, axis=0)) == len(B)
     step = P[B[:, 1]] - P[B[:, 0]]
     assert np.allclose(P[B[:, 2]] - P[B[:, 1]], step)  # straight columns, one cell per step
     assert np.allclose(np.linalg.norm(step, axis=1), d.cell_size)
@@ -57,20 +58,11 @@ def test_braces_keep_rest_rigid_and_descent(device):
     assert np.all(np.diff(E) <= 10 * tol * E[0]), E
 
 
-def test_braces_change_the_pose_only_where_the_solid_branches():
-    """The braces' energy is zero on the rest pose and under affine maps; on a lattice without
-    branching cells they are absent and junction_brace changes nothing."""
+def test_a_box_has_no_branching_cell():
+    """Nothing branches in a plain lattice: a box at several resolutions has no braces."""
     V, F = shapes.box((0, 0, 0), (4, 1, 1), 6)
-    d = larap.Deformer(V, F, cells=200)
-    assert d.junction_braces().shape == (0, 3)
-    left, right = np.flatnonzero(V[:, 0] < 0.5), np.flatnonzero(V[:, 0] > 3.5)
-    T = np.stack([np.eye(4), affine(rotation([0, 1, 0], 40), pivot=(3.5, 0.5, 0.5))])
-    out = []
-    for brace in (0.0, 500.0):
-        e = larap.Deformer(V, F, cells=200, junction_brace=brace)
-        e.set_handle_groups([left, right])
-        out.append(e.solve(transforms=T, iterations=10))
-    assert np.array_equal(out[0], out[1])
+    for cells in (50, 200, 2000):
+        assert larap.Deformer(V, F, cells=cells).junction_braces().shape == (0, 3)
 
 
 @pytest.mark.parametrize("device", DEVICES)

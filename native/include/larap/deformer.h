@@ -118,7 +118,7 @@ class Deformer {
   WeightKind weights() const;
   double gamma() const;
   double junction_brace() const;
-  // The braced columns (a, b, c) of the fine lattice's real nodes, held straight by junction_brace
+  // The braced columns (a, b, c), a < c, of the fine lattice's real nodes, held straight by junction_brace
   // where the solid branches; empty when junction_brace is 0 or nothing branches.
   std::vector<std::array<int32_t, 3>> junction_braces() const;
   double diagonal() const;                 // bounding-box diagonal of the rest mesh

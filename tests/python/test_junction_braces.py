@@ -7,7 +7,7 @@ docs/method.md); and junction_brace=0 gives back the lattice without braces."""
 import numpy as np
 import pytest
 from conftest import affine, cpu_and_cuda, rotation
-from test_junctions import finger_pose, hand_size
+from test_junctions import assert_rest_and_rigid, finger_pose, hand_size
 
 import larap
 from larap import shapes
@@ -45,13 +45,7 @@ def test_braces_keep_rest_rigid_and_descent(device):
     assert len(d.junction_braces()) > 0
     groups, T = finger_pose(V, parts)
     d.set_handle_groups(groups)
-    tol = 1e-4 if d.device == "cuda" else 1e-7  # the device solves in float
-    size = hand_size(V, parts)
-    X = d.solve(transforms=np.stack([np.eye(4)] * len(groups)), iterations=5)
-    assert np.abs(X - V).max() <= tol * size
-    M = affine(rotation([1, 2, 3], 50), pivot=(0.8, 0.0, 1.4))
-    X = d.solve(transforms=np.stack([M] * len(groups)), iterations=5)
-    assert np.abs(X - (V @ M[:3, :3].T + M[:3, 3])).max() <= tol * size
+    tol = assert_rest_and_rigid(d, V, parts)
     d.reset()
     d.solve(transforms=T, iterations=30)
     E = np.array(d.stats["energy"])

@@ -76,6 +76,7 @@ struct Deformer::Impl {
   WeightKind weights;
   double gamma;
   double brace;           // junction braces' weight (junction_braces.h)
+  std::vector<std::array<int32_t, 3>> braces;  // the lattice's braces, found at bind (none when brace is 0)
   double diagonal = 1.0;  // bounding-box diagonal of the rest mesh
   double size = 1.0;      // radius of gyration of the rest vertices (the gamma's length scale)
   mutable std::unique_ptr<Binding> bindings[2];  // per weight kind, made on first use
@@ -138,6 +139,7 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   validate_mesh(d.mesh);
   auto t0 = Clock::now();
   d.lattice = Lattice::build(d.mesh, options.lattice);
+  if (d.brace > 0.0) d.braces = larap::junction_braces(d.lattice);
   d.stats.ms_lattice = ms_since(t0);
   const RowMatrixX3d& V = d.mesh.vertices;
   const Eigen::Vector3d ext = (V.colwise().maxCoeff() - V.colwise().minCoeff()).transpose();
@@ -152,7 +154,7 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   d.stats.ms_binding = ms_since(t0);
   d.backend = make_backend(options.device, d.lattice, V, d.fallback);
   d.auto_device = options.device == "auto";
-  d.hierarchy = Hierarchy(d.lattice, V, options.levels);
+  d.hierarchy = Hierarchy(d.lattice, V, options.levels, d.brace > 0.0);
 }
 
 Deformer::~Deformer() = default;
@@ -301,7 +303,8 @@ void Deformer::Impl::prepare_handles() {
   std::vector<int32_t> ids(size_t(mh) * s);
   std::vector<double> w(ids.size());
   for (int64_t j = 0; j < mh; ++j) b.weights_of(lattice, spec.vertices[j], &ids[j * s], &w[j * s]);
-  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, brace, size, origin);
+  HandleSystem hs = make_handle_system(lattice, s, std::move(ids), std::move(w), spec, gamma, braces, brace, size,
+                                       origin);
   fine_anchored = hs.anchored;
   fine_group_components = group_components(hs);
   hierarchy.set_handles(spec, gamma, brace, size, origin);
@@ -558,10 +561,7 @@ int64_t Deformer::num_groups() const { return int64_t(impl_->spec.group_offsets.
 WeightKind Deformer::weights() const { return impl_->weights; }
 double Deformer::gamma() const { return impl_->gamma; }
 double Deformer::junction_brace() const { return impl_->brace; }
-std::vector<std::array<int32_t, 3>> Deformer::junction_braces() const {
-  if (!(impl_->brace > 0.0)) return {};
-  return larap::junction_braces(impl_->lattice);
-}
+std::vector<std::array<int32_t, 3>> Deformer::junction_braces() const { return impl_->braces; }
 double Deformer::diagonal() const { return impl_->diagonal; }
 std::string Deformer::device() const { return impl_->backend->name(); }
 const std::string& Deformer::fallback_reason() const { return impl_->fallback; }

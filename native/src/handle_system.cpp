@@ -7,14 +7,14 @@
 #include <limits>
 
 #include "carried_parts.h"
-#include "junction_braces.h"
 #include "parallel.h"
 
 namespace larap {
 
 HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int32_t> ids,
                                 std::vector<double> weights, const HandleSpec& spec, double gamma,
-                                double brace, double size, const Eigen::Vector3d& origin) {
+                                const std::vector<std::array<int32_t, 3>>& braces, double brace,
+                                double size, const Eigen::Vector3d& origin) {
   const std::vector<double>& omega = spec.omega;
   const std::vector<double>& group_weights = spec.group_weights;
   const RowMatrixX3d& rest = spec.rest;
@@ -70,8 +70,8 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   hs.glue = std::move(carried.glue);
   hs.anchor_weight = 2.0 * hs.gamma_eff * mean_edge;
   hs.glue_weight = kGlue * hs.gamma_eff * mean_edge;
-  if (brace > 0.0) {
-    hs.braces = junction_braces(lat);
+  if (brace > 0.0 && !braces.empty()) {
+    hs.braces = braces;
     hs.brace_weight = brace * hs.gamma_eff * mean_edge;
   }
 

@@ -99,12 +99,14 @@ struct HandleSpec {
 };
 
 // The handle system of `lattice` for rows (ids, weights) of `stencil` entries each (the handle
-// vertices of `spec` bound to this lattice); gamma is the user's scale-free gamma, `brace` the
-// junction braces' weight per unit of gamma_eff times the mean edge weight (junction_braces.h;
-// 0: none) and `size` the model's length scale s; `origin` centres the handle sums.
+// vertices of `spec` bound to this lattice); gamma is the user's scale-free gamma, `braces` the
+// lattice's junction braces (computed once with the lattice: junction_braces.h) and `brace` their
+// weight per unit of gamma_eff times the mean edge weight (0: none); `size` is the model's length
+// scale s; `origin` centres the handle sums.
 HandleSystem make_handle_system(const Lattice& lattice, int stencil, std::vector<int32_t> ids,
                                 std::vector<double> weights, const HandleSpec& spec, double gamma,
-                                double brace, double size, const Eigen::Vector3d& origin);
+                                const std::vector<std::array<int32_t, 3>>& braces, double brace,
+                                double size, const Eigen::Vector3d& origin);
 
 // What one pose asks of the handles: a target per row, or one affine map per group.
 struct HandleTargets {

@@ -2,6 +2,7 @@
 
 #include "backend.h"
 #include "handle_system.h"
+#include "junction_braces.h"
 #include "stencil.h"
 #include "warm_start.h"
 
@@ -14,6 +15,7 @@ struct Hierarchy::Level {
   // nodes (the corners of the coarse cell that holds it).
   std::vector<std::array<int32_t, 8>> prolong_ids;
   std::vector<std::array<double, 8>> prolong_w;
+  std::vector<std::array<int32_t, 3>> braces;  // the level's junction braces (junction_braces.h)
   std::vector<uint8_t> anchored;  // empty until handles are set
   std::vector<std::array<int32_t, 2>> group_components;  // (group, component) of the handles' rows
 
@@ -36,7 +38,7 @@ int Hierarchy::size() const { return static_cast<int>(levels_.size()); }
 Hierarchy::Hierarchy(Hierarchy&&) noexcept = default;
 Hierarchy& Hierarchy::operator=(Hierarchy&&) noexcept = default;
 
-Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels) {
+Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, bool braced) {
   levels_.reserve(size_t(std::max(levels - 1, 0)));  // `finer` points into levels_: no reallocation
   const Lattice* finer = &fine;
   for (int k = 1; k < levels; ++k) {
@@ -68,6 +70,7 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
         }
       }
     }
+    if (braced) lv.braces = junction_braces(lv.lattice);
     lv.backend = make_cpu_backend(lv.lattice, vertices);
     finer = &lv.lattice;
   }
@@ -85,7 +88,8 @@ void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double brace, 
     std::vector<int32_t> ids(size_t(m) * 8);
     std::vector<double> w(ids.size());
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
-    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, brace, size, origin);
+    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, lv.braces, brace,
+                                         size, origin);
     lv.anchored = hs.anchored;
     lv.group_components = group_components(hs);
     lv.backend->set_handles(hs);

@@ -31,15 +31,17 @@ class Hierarchy {
   Hierarchy(Hierarchy&&) noexcept;
   Hierarchy& operator=(Hierarchy&&) noexcept;
 
-  // Up to levels - 1 coarser levels above `fine` (fewer when a level reaches a single cell).
-  Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels);
+  // Up to levels - 1 coarser levels above `fine` (fewer when a level reaches a single cell), each
+  // with its junction braces when `braced` (junction_braces.h).
+  Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, bool braced);
 
   // Number of coarse levels (0: the fine lattice alone).
   int size() const;
   // Nodes of coarse level `level` + 1 (0 <= level < size()).
   int64_t num_nodes(int level) const;
 
-  // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level.
+  // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level;
+  // `brace` weighs each level's braces as make_handle_system does.
   void set_handles(const HandleSpec& spec, double gamma, double brace, double size, const Eigen::Vector3d& origin);
 
   // Every coarse level back to its rest pose.

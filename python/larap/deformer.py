@@ -14,6 +14,7 @@ from .io import faces_to_csr
 DEFAULT_GAMMA = _core.DEFAULT_GAMMA  # the engine's default stiffness (native/include/larap/deformer.h)
 GAMMA_RANGE = tuple(_core.GAMMA_RANGE)  # (least, largest) gamma the engine accepts: (1e-08, 1e+08)
 DEFAULT_JUNCTION_BRACE = _core.DEFAULT_JUNCTION_BRACE  # braces where the solid branches (docs/method.md)
+MAX_JUNCTION_BRACE = _core.MAX_JUNCTION_BRACE  # the largest junction_brace the engine accepts (1e4)
 
 
 def available_devices() -> list[str]:

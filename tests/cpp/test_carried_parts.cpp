@@ -249,7 +249,7 @@ TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
   std::vector<double> w(64);
   for (int64_t j = 0; j < 8; ++j) b.weights_of(lat, j, &ids[size_t(j) * 8], &w[size_t(j) * 8]);
   const Eigen::Vector3d origin(0.3, -0.2, 0.1);
-  const HandleSystem hs = make_handle_system(lat, 8, ids, w, spec, 0.1, 0.0, 1.0, origin);
+  const HandleSystem hs = make_handle_system(lat, 8, ids, w, spec, 0.1, {}, 0.0, 1.0, origin);
   ASSERT_FALSE(hs.glue.empty());
 
   auto backend = make_cpu_backend(lat, m.vertices);

@@ -9,9 +9,11 @@
 #include <algorithm>
 #include <random>
 
+#include "backend.h"
 #include "handle_system.h"
 #include "junction_braces.h"
 #include "test_meshes.h"
+#include "warm_start.h"
 
 using namespace larap;
 
@@ -48,7 +50,8 @@ HandleSystem system_of(const Lattice& lat, const PolygonMesh& m, double brace) {
   std::vector<int32_t> ids(size_t(n) * 8);
   std::vector<double> w(ids.size());
   for (int64_t v = 0; v < n; ++v) b.weights_of(lat, v, &ids[size_t(v) * 8], &w[size_t(v) * 8]);
-  return make_handle_system(lat, 8, ids, w, spec, 0.03, brace, 1.0, Eigen::Vector3d(0.2, -0.1, 0.3));
+  return make_handle_system(lat, 8, ids, w, spec, 0.03, junction_braces(lat), brace, 1.0,
+                            Eigen::Vector3d(0.2, -0.1, 0.3));
 }
 
 Eigen::Vector3i cell_of_point(const Lattice& lat, const Eigen::Vector3d& p) {
@@ -150,4 +153,43 @@ TEST(JunctionBraces, AWeightOfZeroTurnsThemOff) {
   EXPECT_TRUE(hs.braces.empty());
   EXPECT_FALSE(hs.has_ties());
   EXPECT_EQ(tie_matrix(hs, lat.num_real_nodes()).nonZeros(), 0);
+}
+
+// The warm start's moments are sums over the handle rows (warm_start.h): the braces, like the
+// glue, must not enter them, even on a pose that bends every braced column.
+TEST(JunctionBraces, TheWarmStartsMomentsLeaveThemOut) {
+  const PolygonMesh m = two_slabs_on_a_block();
+  const Lattice lat = build(m, true);
+  RowMatrixX3d targets = m.vertices;
+  targets.col(0).array() += 0.3;
+  targets(3, 2) += 0.2;
+  RowMatrixX3d pose = lat.rest;
+  for (int64_t i = 0; i < pose.rows(); ++i)
+    pose.row(i) += Eigen::RowVector3d(0.01 * (i % 7), -0.02 * (i % 5), 0.03 * (i % 3));
+  std::vector<ComponentMoments> got[2];
+  for (int k = 0; k < 2; ++k) {
+    const HandleSystem hs = system_of(lat, m, k == 0 ? 0.0 : 50.0);
+    ASSERT_EQ(hs.braces.size(), k == 0 ? 0u : 4u);
+    if (k == 1) {  // the pose bends the braces: they would pull if they entered
+      double bent = 0.0;
+      for (const auto& [a, b, c] : hs.braces) bent += (pose.row(a) - 2.0 * pose.row(b) + pose.row(c)).squaredNorm();
+      ASSERT_GT(bent, 1e-4);
+    }
+    auto backend = make_cpu_backend(lat, m.vertices);
+    backend->set_handles(hs);
+    backend->set_targets(HandleTargets{targets.data(), nullptr});
+    backend->set_pose(pose);
+    backend->moments(false, got[k]);
+  }
+  ASSERT_EQ(got[0].size(), got[1].size());
+  for (size_t c = 0; c < got[0].size(); ++c) {
+    const ComponentMoments &a = got[0][c], &b = got[1][c];
+    EXPECT_NEAR(a.w, b.w, 1e-12);
+    EXPECT_LE((a.p - b.p).norm(), 1e-12);
+    EXPECT_LE((a.t - b.t).norm(), 1e-12);
+    EXPECT_LE((a.pt - b.pt).norm(), 1e-12);
+    EXPECT_LE((a.pp - b.pp).norm(), 1e-12);
+    EXPECT_NEAR(a.tt, b.tt, 1e-12);
+  }
+  EXPECT_GT(got[0][0].w, 0.0);
 }

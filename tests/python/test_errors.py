@@ -71,6 +71,13 @@ def test_construction_errors(what, kw, exc, words):
     assert words in str(info.value), str(info.value)
 
 
+def test_junction_brace_is_accepted_up_to_its_published_bound():
+    assert larap.MAX_JUNCTION_BRACE == 1e4
+    assert make(junction_brace=larap.MAX_JUNCTION_BRACE).junction_brace == larap.MAX_JUNCTION_BRACE
+    with pytest.raises(ValueError, match="junction_brace must be between 0 and 10000"):
+        make(junction_brace=np.nextafter(larap.MAX_JUNCTION_BRACE, np.inf))
+
+
 def test_cuda_without_gpu_is_a_clear_error():
     if "cuda" in larap.available_devices():
         pytest.skip("a GPU is present")

@@ -154,7 +154,7 @@ Deformer::Deformer(PolygonMesh mesh, const DeformerOptions& options) : impl_(std
   d.stats.ms_binding = ms_since(t0);
   d.backend = make_backend(options.device, d.lattice, V, d.fallback);
   d.auto_device = options.device == "auto";
-  d.hierarchy = Hierarchy(d.lattice, V, options.levels, d.brace > 0.0);
+  d.hierarchy = Hierarchy(d.lattice, V, options.levels, d.brace);
 }
 
 Deformer::~Deformer() = default;
@@ -307,7 +307,7 @@ void Deformer::Impl::prepare_handles() {
                                        origin);
   fine_anchored = hs.anchored;
   fine_group_components = group_components(hs);
-  hierarchy.set_handles(spec, gamma, brace, size, origin);
+  hierarchy.set_handles(spec, gamma, size, origin);
   if (hs.m > 0) {
     try {
       backend->set_handles(hs);

@@ -38,7 +38,7 @@ int Hierarchy::size() const { return static_cast<int>(levels_.size()); }
 Hierarchy::Hierarchy(Hierarchy&&) noexcept = default;
 Hierarchy& Hierarchy::operator=(Hierarchy&&) noexcept = default;
 
-Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, bool braced) {
+Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, double brace) : brace_(brace) {
   levels_.reserve(size_t(std::max(levels - 1, 0)));  // `finer` points into levels_: no reallocation
   const Lattice* finer = &fine;
   for (int k = 1; k < levels; ++k) {
@@ -70,13 +70,13 @@ Hierarchy::Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int leve
         }
       }
     }
-    if (braced) lv.braces = junction_braces(lv.lattice);
+    if (brace_ > 0.0) lv.braces = junction_braces(lv.lattice);
     lv.backend = make_cpu_backend(lv.lattice, vertices);
     finer = &lv.lattice;
   }
 }
 
-void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double brace, double size,
+void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double size,
                             const Eigen::Vector3d& origin) {
   const int64_t m = spec.rest.rows();
   for (auto& lv : levels_) {
@@ -88,7 +88,7 @@ void Hierarchy::set_handles(const HandleSpec& spec, double gamma, double brace, 
     std::vector<int32_t> ids(size_t(m) * 8);
     std::vector<double> w(ids.size());
     for (int64_t j = 0; j < m; ++j) hb.weights_of(lv.lattice, j, &ids[j * 8], &w[j * 8]);
-    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, lv.braces, brace,
+    HandleSystem hs = make_handle_system(lv.lattice, 8, std::move(ids), std::move(w), spec, gamma, lv.braces, brace_,
                                          size, origin);
     lv.anchored = hs.anchored;
     lv.group_components = group_components(hs);

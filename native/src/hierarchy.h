@@ -32,17 +32,16 @@ class Hierarchy {
   Hierarchy& operator=(Hierarchy&&) noexcept;
 
   // Up to levels - 1 coarser levels above `fine` (fewer when a level reaches a single cell), each
-  // with its junction braces when `braced` (junction_braces.h).
-  Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, bool braced);
+  // with its junction braces weighing `brace` (junction_braces.h; 0: none), as the fine level's.
+  Hierarchy(const Lattice& fine, const RowMatrixX3d& vertices, int levels, double brace);
 
   // Number of coarse levels (0: the fine lattice alone).
   int size() const;
   // Nodes of coarse level `level` + 1 (0 <= level < size()).
   int64_t num_nodes(int level) const;
 
-  // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level;
-  // `brace` weighs each level's braces as make_handle_system does.
-  void set_handles(const HandleSpec& spec, double gamma, double brace, double size, const Eigen::Vector3d& origin);
+  // Binds the handles of `spec` (trilinearly, at their rest positions) on every coarse level.
+  void set_handles(const HandleSpec& spec, double gamma, double size, const Eigen::Vector3d& origin);
 
   // Every coarse level back to its rest pose.
   void reset();
@@ -61,6 +60,7 @@ class Hierarchy {
  private:
   struct Level;
   std::vector<Level> levels_;  // levels_[k] is level k+1 (cells 2^(k+1) times larger)
+  double brace_ = 0.0;         // the junction braces' weight (make_handle_system)
 };
 
 }  // namespace larap

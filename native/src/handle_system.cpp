@@ -230,12 +230,11 @@ Eigen::SparseMatrix<double> tie_matrix(const HandleSystem& hs, int64_t num_nodes
     trip.emplace_back(b, a, -mu);
   }
   const double beta = hs.brace_weight;
-  if (beta > 0.0)
-    for (const auto& s : hs.braces) {  // beta s s^T, s = (1, -2, 1) on (a, b, c)
-      constexpr double coef[3] = {1.0, -2.0, 1.0};
-      for (int u = 0; u < 3; ++u)
-        for (int v = 0; v < 3; ++v) trip.emplace_back(s[u], s[v], beta * coef[u] * coef[v]);
-    }
+  for (const auto& s : hs.braces) {  // beta s s^T, s = (1, -2, 1) on (a, b, c)
+    constexpr double coef[3] = {1.0, -2.0, 1.0};
+    for (int u = 0; u < 3; ++u)
+      for (int v = 0; v < 3; ++v) trip.emplace_back(s[u], s[v], beta * coef[u] * coef[v]);
+  }
   Eigen::SparseMatrix<double> G(num_nodes, num_nodes);
   G.setFromTriplets(trip.begin(), trip.end());
   return G;

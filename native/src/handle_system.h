@@ -79,14 +79,14 @@ struct HandleSystem {
   double anchor_weight = 0.0;          // a
   std::vector<std::array<int32_t, 2>> glue;  // (carried node, carrier node) pairs
   double glue_weight = 0.0;            // mu
-  std::vector<std::array<int32_t, 3>> braces;  // (a, b, c) columns of branching copies
+  std::vector<std::array<int32_t, 3>> braces;  // (a, b, c) columns of branching copies (none when beta is 0)
   double brace_weight = 0.0;           // beta
   std::vector<int32_t> node_component; // #N: the component whose warm start a node takes
   double energy_scale = 1.0;           // reported energy = E * energy_scale (= 1 / s^2)
   int32_t num_components = 0;          // of the lattice
 
   int64_t num_groups() const { return static_cast<int64_t>(group_offsets.size()) - 1; }
-  bool has_ties() const { return !glue.empty() || (!braces.empty() && brace_weight > 0.0); }
+  bool has_ties() const { return !glue.empty() || !braces.empty(); }
 };
 
 // The handles as the user gave them, independent of any lattice.

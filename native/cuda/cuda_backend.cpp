@@ -23,8 +23,7 @@
 
 namespace larap {
 
-CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
-    : lat_(lattice), V_(vertices) {
+CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices) : lat_(lattice), V_(vertices) {
   n_all_ = int(lattice.num_nodes());
   n_ = int(lattice.num_real_nodes());  // the unknowns; the stencil shell follows them
   origin_ = 0.5 * (lattice.rest.colwise().minCoeff() + lattice.rest.colwise().maxCoeff()).transpose();
@@ -83,7 +82,8 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
     }
     const NodeCells t = node_cells(lattice);
     std::vector<float4> s(t.s.size());
-    for (size_t k = 0; k < s.size(); ++k) s[k] = make_float4(float(t.s[k][0]), float(t.s[k][1]), float(t.s[k][2]), 0.f);
+    for (size_t k = 0; k < s.size(); ++k)
+      s[k] = make_float4(float(t.s[k][0]), float(t.s[k][1]), float(t.s[k][2]), 0.f);
     sys_.nc_off = nc_off_.upload(t.offsets.data(), t.offsets.size(), stream_);
     sys_.nc_cell = nc_cell_.upload(t.cell.data(), t.cell.size(), stream_);
     sys_.nc_s = nc_s_.upload(s.data(), s.size(), stream_);
@@ -106,16 +106,16 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
   sys_.s[0] = s_[0].reserve(n_);
   sys_.s[1] = s_[1].reserve(n_);
   sys_.x_tmp = xtmp_.reserve(n_);
-  sys_.rot = rot_.reserve(size_t(9) * std::max(1, sys_.ncell));
+  sys_.rot = rot_.reserve(size_t(3) * std::max(1, sys_.ncell));
   disp_.reserve(n_all_);
   sys_.iter = iter_.reserve(1);
   configure();
   LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.p, 0, sizeof(float4) * n_, stream_));
   const size_t nc = size_t(std::max(1, sys_.ncell));
-  std::vector<float> eye(9 * nc, 0.f);
-  for (size_t c = 0; c < nc; ++c) eye[0 * nc + c] = eye[4 * nc + c] = eye[8 * nc + c] = 1.f;
+  std::vector<float4> eye(3 * nc, make_float4(0.f, 0.f, 0.f, 0.f));
+  for (size_t c = 0; c < nc; ++c) eye[3 * c].x = eye[3 * c + 1].y = eye[3 * c + 2].z = 1.f;
   LARAP_CUDA_CHECK(
-      cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float), cudaMemcpyHostToDevice, stream_));
+      cudaMemcpyAsync(sys_.rot, eye.data(), eye.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
 }
 

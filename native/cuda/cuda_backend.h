@@ -125,6 +125,9 @@ class CudaBackend final : public Backend {
   template <typename T>
   void copy_back(const Binding& b, DevBinding& d, int64_t nv, const T* V, T* dout, T* out);
 
+  // One JSON line to opt_.phases_path: the fused kernel's mean clock cycles per grid-wide phase of
+  // a flip-flop over one iterate, from its clock64() stamps (cuda_iterate.cpp).
+  void write_phases(const std::vector<double>& cycles, int flip_flops);
   // One JSON line to opt_.profile_path (cuda_backend.cpp).
   void write_profile(const char* what, int iterations,
                      std::initializer_list<std::pair<const char*, double>> kv);
@@ -173,11 +176,13 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<int> cell_nodes_, nc_off_, nc_cell_;  // cell copies (system.h)
   cuda::DeviceBuffer<float> cell_w_;
   cuda::DeviceBuffer<float4> nc_s_;
-  cuda::DeviceBuffer<float> a_val_, minv_, rot_, coef_;
+  cuda::DeviceBuffer<float> a_val_, minv_, coef_;
+  cuda::DeviceBuffer<float4> rot_;
   cuda::DeviceBuffer<uint8_t> anch_;
   cuda::DeviceBuffer<double> dots_, energy_;
   cuda::DeviceBuffer<unsigned> counters_;
   cuda::PinnedBuffer<double> h_energy_;
+  cuda::DeviceBuffer<long long> stamps_;  // LARAP_CUDA_PHASES only
   cuda::PinnedBuffer<char> staging_;
   DevBinding bind_[2];
   cuda::DeviceBuffer<float> vf_;

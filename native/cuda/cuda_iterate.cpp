@@ -6,6 +6,7 @@
 #include <larap/errors.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <vector>
 
 #include "cuda_backend.h"
@@ -49,16 +50,29 @@ void CudaBackend::iterate(int iterations, SolveStats& stats) {
     // One cooperative launch for all flip-flops (energy of flip-flop it - 1 in its rotation
     // phase, as in the graph); at most kFusedChunk flip-flops a launch.
     constexpr int kFusedChunk = 64;
+    const int phases = cuda::fused_phases(sys_);
+    std::vector<double> cycles;  // LARAP_CUDA_PHASES: per phase, summed over the flip-flops
+    std::vector<long long> st;
+    if (!opt_.phases_path.empty()) cycles.assign(phases, 0.0);
     for (int it0 = 0; it0 < iterations; it0 += kFusedChunk) {
       cuda::System sc = sys_;
       sc.energy = sys_.energy + 2 * it0;
       const int cnt = std::min(kFusedChunk, iterations - it0);
+      if (!cycles.empty()) sc.stamps = stamps_.reserve(size_t(1) + size_t(cnt) * phases);
       if (it0 > 0) {  // the first rotation phase of this chunk adds flip-flop it0 - 1's energy
         cuda::launch_rotations(sys_, false, it0 - 1, stream_);
         LARAP_CUDA_CHECK(cudaGetLastError());
       }
       LARAP_CUDA_CHECK(cuda::launch_mg_fused(sc, cnt, fused_blocks(), stream_));
+      if (!cycles.empty()) {  // a synchronisation per chunk: measurement only
+        st.resize(size_t(1) + size_t(cnt) * phases);
+        LARAP_CUDA_CHECK(cudaMemcpyAsync(st.data(), sc.stamps, st.size() * sizeof(long long),
+                                         cudaMemcpyDeviceToHost, stream_));
+        LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+        for (size_t k = 1; k < st.size(); ++k) cycles[(k - 1) % phases] += double(st[k] - st[k - 1]);
+      }
     }
+    if (!cycles.empty()) write_phases(cycles, iterations);
   } else if (opt_.graph) {
     if (!graph_.get()) build_graph();
     for (int it = 0; it < iterations; ++it) LARAP_CUDA_CHECK(cudaGraphLaunch(graph_.get(), stream_));
@@ -131,8 +145,7 @@ int CudaBackend::fused_blocks() {
 void CudaBackend::flip_flop() {
   cuda::launch_rotations(sys_, true, -1, stream_);
   LARAP_CUDA_CHECK(cudaGetLastError());
-  cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid,
-                   stream_);
+  cuda::launch_rhs(sys_, opt_.solver == cuda::Solver::Pcg || opt_.solver == cuda::Solver::Multigrid, stream_);
   LARAP_CUDA_CHECK(cudaGetLastError());
   launch_solver();
 }
@@ -154,6 +167,22 @@ void CudaBackend::build_graph() {
   cudaGraphDestroy(g);
   if (e != cudaSuccess) cuda::fail(e, "cudaGraphInstantiate");
   graph_.set(exec);
+}
+
+void CudaBackend::write_phases(const std::vector<double>& cycles, int flip_flops) {
+  int dev = 0, khz = 0;
+  LARAP_CUDA_CHECK(cudaGetDevice(&dev));
+  LARAP_CUDA_CHECK(cudaDeviceGetAttribute(&khz, cudaDevAttrClockRate, dev));  // the maximum clock
+  FILE* f = std::fopen(opt_.phases_path.c_str(), "a");
+  if (!f) return;
+  // Phases in kernel order: rotations, rhs, per inner iteration a[, a1], coarse[, b1], c, d; final.
+  std::fprintf(f,
+               "{\"what\": \"phases\", \"nodes\": %d, \"inner\": %d, \"levels\": %d, \"flip_flops\": %d, "
+               "\"blocks\": %d, \"clock_khz\": %d, \"cycles\": [",
+               n_, inner_, sys_.nc2 > 0 ? 3 : 2, flip_flops, fused_blocks(), khz);
+  for (size_t k = 0; k < cycles.size(); ++k) std::fprintf(f, "%s%.6g", k ? ", " : "", cycles[k] / flip_flops);
+  std::fprintf(f, "]}\n");
+  std::fclose(f);
 }
 
 void CudaBackend::set_energy_buffer(size_t n) {

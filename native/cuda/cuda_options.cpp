@@ -76,6 +76,7 @@ CudaOptions cuda_options_from_environment() {
   o.exact_residual = env_int("LARAP_CUDA_EXACT_RESIDUAL", 1) != 0;
   o.coop_blocks = std::max(0, env_int("LARAP_CUDA_COOP_BLOCKS", 0));
   if (const char* v = env("LARAP_CUDA_PROFILE")) o.profile_path = v;
+  if (const char* v = env("LARAP_CUDA_PHASES")) o.phases_path = v;
   if (const char* v = env("LARAP_CUDA_TRANSFER")) o.transfer = parse_transfer(v);
   o.cheby_ratio = std::max(1.0, double(env_int("LARAP_CUDA_CHEBY_RATIO", 50)));
   if (const char* v = env("LARAP_CUDA_COPY")) {

@@ -57,6 +57,11 @@ struct CudaOptions {
   // A file to which per-stage device times are appended as JSON lines (plain launches, a sync
   // per flip-flop); empty = off.                                      LARAP_CUDA_PROFILE
   std::string profile_path;
+  // A file to which the fused kernel (the product's path, unlike LARAP_CUDA_PROFILE) appends, per
+  // iterate, its mean clock cycles per phase of a flip-flop: one thread's clock64() after each
+  // grid-wide barrier, so a phase counts its slowest block and the barrier (the final update's
+  // phase is empty where it is left to the next flip-flop); empty = off.  LARAP_CUDA_PHASES
+  std::string phases_path;
   TransferKernel transfer;    // LARAP_CUDA_TRANSFER = scalar | staged | ilp1 | ilp2 | ilp4 | ilp2s | ilp4s
   double cheby_ratio = 50.0;  // cheby: lambda_max / lambda_min assumed   LARAP_CUDA_CHEBY_RATIO
   CopyBack copy = CopyBack::Overlap;  // LARAP_CUDA_COPY = overlap | staged | direct

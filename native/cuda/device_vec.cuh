@@ -49,8 +49,32 @@ __device__ void block_add(double (&v)[NV], double* dst) {
   }
 }
 
+// body(val[q], col[q]) for q in [q0, q1), in order, kRowBatch entries at a time: a batch's
+// column and value loads are all issued before the first of its gathers, so that a long row (a
+// handle node's: about 20 remainder entries of A, 27 of M) costs a few load latencies, not two
+// per entry. A batch is padded with (0, pad): a zero term on a row the caller reads anyway, so
+// the sums are the loop's (bit for bit, but for the sign of an exact zero, and a non-finite
+// value at the node itself would make its zero term NaN; docs/results-gpu.md, session 24).
+constexpr int kRowBatch = 8;
+template <class V, class F>
+__device__ __forceinline__ void for_row(int q0, int q1, int pad, const int* __restrict__ col,
+                                        const V* __restrict__ val, F body) {
+  for (int q = q0; q < q1; q += kRowBatch) {
+    int js[kRowBatch];
+    V vs[kRowBatch];
+#pragma unroll
+    for (int u = 0; u < kRowBatch; ++u) {
+      const bool in = q + u < q1;  // a padded entry loads nothing (the loads are under `in`)
+      js[u] = in ? __ldg(col + q + u) : pad;
+      vs[u] = in ? __ldg(val + q + u) : V(0);
+    }
+#pragma unroll
+    for (int u = 0; u < kRowBatch; ++u) body(vs[u], js[u]);
+  }
+}
+
 // (A v)_i with v_j = get(j): diagonal + 6 unrolled lattice slots (all loads in flight at once)
-// + the short remainder list.
+// + the short remainder list, in batches (for_row).
 template <class F>
 __device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
   int js[6];
@@ -64,7 +88,7 @@ __device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
 #pragma unroll
   for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d]);
   const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
-  for (int q = q0; q < q1; ++q) acc = acc + __ldg(s.rem_val + q) * get(__ldg(s.rem_col + q));
+  for_row(q0, q1, i, s.rem_col, s.rem_val, [&](float v, int j) { acc = acc + v * get(j); });
   return acc;
 }
 

@@ -8,7 +8,7 @@ namespace cuda {
 namespace {
 
 __global__ void __launch_bounds__(kBlock) rotations_kernel(System s, bool write_rot, int slot) {
-  const int k = blockIdx.x * blockDim.x + threadIdx.x;
+  const int k = blockIdx.x * blockDim.x + threadIdx.x;  // < ncell + n, or a spare thread
   int e_slot = slot;
   if (slot == -1) e_slot = *s.iter - 1;  // < 0 on the first flip-flop of a solve: no energy
   double v[2] = {0.0, 0.0};
@@ -59,7 +59,7 @@ __global__ void probe_kernel() {}
 }  // namespace
 
 void launch_rotations(const System& s, bool write_rot, int slot, cudaStream_t st) {
-  const int items = s.ncell > s.n ? s.ncell : s.n;
+  const int items = s.ncell + s.n;  // rotation_items with the energy (known on the device only)
   if (items == 0) return;
   rotations_kernel<<<blocks_for(items), kBlock, 0, st>>>(s, write_rot, slot);
 }

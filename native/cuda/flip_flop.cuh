@@ -1,10 +1,11 @@
 // Device functions of one flip-flop (per cell copy: rotation with the energy; per node: anchor
 // and handle energy, the right-hand side, the starting residual), shared by the separate kernels
 // (flip_flop.cu) and the fused cooperative kernel (solvers.cu). The arithmetic is cell_terms.h's,
-// the same as the CPU backend's; here only the access to the device layout: corners and
-// rotations as SoA over the copies (system.h), the per-node list of copies for the right-hand
-// side, and for the Laplacian the fixed 6-slot neighbour table (a missing neighbour is the node
-// itself) plus the short list of extra neighbours of split cells.
+// the same as the CPU backend's; here only the access to the device layout: corners as SoA over
+// the copies, rotations as three float4 rows per copy (system.h), the per-node list of copies for
+// the right-hand side, and for the Laplacian the fixed 6-slot neighbour table (a missing
+// neighbour is the node itself) plus the short list of extra neighbours of split cells. Rows of
+// M and the copies of a node are read in batches (device_vec.cuh, for_row).
 #pragma once
 #include "cell_terms.h"
 #include "device_vec.cuh"
@@ -13,20 +14,30 @@
 namespace larap {
 namespace cuda {
 
+// The previous flip-flop's final update x += al p, which the fused kernel leaves to the next
+// flip-flop's first CG phase (one grid-wide barrier fewer a flip-flop: solvers.cu): until then
+// the rotation and right-hand-side phases read the pose through at(). Empty (p null): x itself,
+// as for every caller outside the fused kernel.
+struct Pending {
+  const float4* p = nullptr;
+  float4 al = {0.f, 0.f, 0.f, 0.f};
+  __device__ __forceinline__ float4 at(const float4* x, int j) const {
+    return p ? x[j] + cmul(al, p[j]) : x[j];
+  }
+};
+
 // Node i's 6 lattice slots and weights (the Laplacian in residual_at).
 struct SlotEdges {
   const System& s;
   float4 pi, ci;
   int js[6];
   int i_;
-  __device__ __forceinline__ SlotEdges(const System& sys, int i)
-      : s(sys), pi(sys.x[i]), ci(sys.rest[i]), i_(i) {
+  __device__ __forceinline__ SlotEdges(const System& sys, int i, const Pending& pd)
+      : s(sys), pi(pd.at(sys.x, i)), ci(sys.rest[i]), i_(i) {
 #pragma unroll
     for (int d = 0; d < 6; ++d) js[d] = __ldg(s.nbr + d * s.n + i);
   }
-  __device__ __forceinline__ float weight(int k) const {
-    return s.nbw ? __ldg(s.nbw + k * s.n + i_) : 1.f;
-  }
+  __device__ __forceinline__ float weight(int k) const { return s.nbw ? __ldg(s.nbw + k * s.n + i_) : 1.f; }
 };
 
 // Node i's extra neighbours (split cells: more than one neighbour in a direction) and their
@@ -44,13 +55,14 @@ struct ExtraEdges {
 // Cell copy c's corners, as cell_terms.h's Corners accessor.
 struct CellCorners {
   const System& s;
+  const Pending& pd;
   int ids[8];
-  __device__ __forceinline__ CellCorners(const System& sys, int c) : s(sys) {
+  __device__ __forceinline__ CellCorners(const System& sys, int c, const Pending& pend) : s(sys), pd(pend) {
 #pragma unroll
     for (int q = 0; q < 8; ++q) ids[q] = __ldg(sys.cell_nodes + q * sys.ncell + c);
   }
   __device__ __forceinline__ void pose(int q, float (&p)[3]) const {
-    const float4 v = s.x[ids[q]];
+    const float4 v = pd.at(s.x, ids[q]);
     p[0] = v.x, p[1] = v.y, p[2] = v.z;
   }
   __device__ __forceinline__ void rest(int q, float (&c)[3]) const {
@@ -59,14 +71,23 @@ struct CellCorners {
   }
 };
 
+// Cell copy c's rotation (row-major), three 16-byte loads: where the right-hand side gathers a
+// node's copies, 3 loads a copy instead of 9 scattered ones (results-gpu.md, session 24).
+__device__ __forceinline__ void load_rotation(const System& s, int c, float (&R)[9]) {
+#pragma unroll
+  for (int a = 0; a < 3; ++a) {
+    const float4 r = s.rot[3 * c + a];
+    R[3 * a] = r.x, R[3 * a + 1] = r.y, R[3 * a + 2] = r.z;
+  }
+}
+
 // Cell copy c: new rotation (write_rot) and, when want_e, its energy term g w_c e_c with the old
 // rotation.
-__device__ __forceinline__ double rot_cell(const System& s, int c, bool write_rot, bool want_e) {
-  const CellCorners corners(s, c);
+__device__ __forceinline__ double rot_cell(const System& s, int c, bool write_rot, bool want_e,
+                                           const Pending& pd = {}) {
+  const CellCorners corners(s, c, pd);
   float Ro[9];
-  if (want_e)
-#pragma unroll
-    for (int k = 0; k < 9; ++k) Ro[k] = s.rot[k * s.ncell + c];
+  if (want_e) load_rotation(s, c, Ro);
   float S[9];
   const float arap = cell_covariance(corners, want_e, Ro, S);
   double e = 0.0;
@@ -75,43 +96,51 @@ __device__ __forceinline__ double rot_cell(const System& s, int c, bool write_ro
     float R[9];
     cuda_math::best_rotation_f(S, R);
 #pragma unroll
-    for (int k = 0; k < 9; ++k) s.rot[k * s.ncell + c] = R[k];
+    for (int a = 0; a < 3; ++a) s.rot[3 * c + a] = f4(R[3 * a], R[3 * a + 1], R[3 * a + 2]);
   }
   return e;
 }
 
 // Node i's anchor term a |x_i - c_i|^2 (0 where it is not anchored).
-__device__ __forceinline__ double anchor_energy(const System& s, int i) {
+__device__ __forceinline__ double anchor_energy(const System& s, int i, const Pending& pd = {}) {
   if (!s.anchored[i]) return 0.0;
-  const float4 d = s.x[i] - s.rest[i];
+  const float4 d = pd.at(s.x, i) - s.rest[i];
   return double(s.a) * double(dot3(d, d));
 }
 
 // Node i's share of the handle term without K: c_i . ((M c)_i - 2 H_i), in double (system.h).
 // 0 for a node no handle reads (an empty row of M).
-__device__ __forceinline__ double handle_energy(const System& s, int i) {
+__device__ __forceinline__ double handle_energy(const System& s, int i, const Pending& pd = {}) {
   const int q0 = __ldg(s.m_off + i), q1 = __ldg(s.m_off + i + 1);
   if (q0 == q1) return 0.0;
   double mx = 0.0, my = 0.0, mz = 0.0;
-  for (int q = q0; q < q1; ++q) {
-    const double v = __ldg(s.m_val + q);
-    const float4 xj = s.x[__ldg(s.m_col + q)];
+  for_row(q0, q1, i, s.m_col, s.m_val, [&](double v, int j) {
+    const float4 xj = pd.at(s.x, j);
     mx += v * double(xj.x);
     my += v * double(xj.y);
     mz += v * double(xj.z);
-  }
-  const float4 xi = s.x[i];
+  });
+  const float4 xi = pd.at(s.x, i);
   const double* h = s.hd + 3 * int64_t(i);
-  return double(xi.x) * (mx - 2.0 * h[0]) + double(xi.y) * (my - 2.0 * h[1]) + double(xi.z) * (mz - 2.0 * h[2]);
+  return double(xi.x) * (mx - 2.0 * h[0]) + double(xi.y) * (my - 2.0 * h[1]) +
+         double(xi.z) * (mz - 2.0 * h[2]);
 }
 
-// The rotation stage's work item k: cell copy k's rotation and energy, node k's anchor and handle
-// energy (v[0]: ARAP and anchors, v[1]: the handle term without K), over k < max(ncell, n).
-__device__ __forceinline__ void rotation_item(const System& s, int k, bool write_rot, bool want_e, double (&v)[2]) {
-  if (k < s.ncell) v[0] += rot_cell(s, k, write_rot, want_e);
-  if (want_e && k < s.n) {
-    v[0] += anchor_energy(s, k);
-    v[1] += handle_energy(s, k);
+// The rotation stage's work item k: cell copy k's rotation and energy (k < ncell), or node
+// k - ncell's anchor and handle energy (only with want_e; nothing for k >= rotation_items); v[0]:
+// ARAP and anchors, v[1]: the handle term without K. Copies and nodes are separate items, so that
+// a node's row of M is not read after a copy's rotation fit by the same thread
+// (docs/results-gpu.md, session 24).
+__device__ __forceinline__ int rotation_items(const System& s, bool want_e) {
+  return s.ncell + (want_e ? s.n : 0);
+}
+__device__ __forceinline__ void rotation_item(const System& s, int k, bool write_rot, bool want_e,
+                                              double (&v)[2], const Pending& pd = {}) {
+  if (k < s.ncell) {
+    v[0] += rot_cell(s, k, write_rot, want_e, pd);
+  } else if (want_e && k - s.ncell < s.n) {
+    v[0] += anchor_energy(s, k - s.ncell, pd);
+    v[1] += handle_energy(s, k - s.ncell, pd);
   }
 }
 
@@ -119,15 +148,23 @@ __device__ __forceinline__ void rotation_item(const System& s, int k, bool write
 // is a corner of (cell_terms.h, node_cells.h).
 __device__ __forceinline__ float4 arap_rhs_at(const System& s, int i) {
   float acc[3] = {0.f, 0.f, 0.f};
-  const int k1 = __ldg(s.nc_off + i + 1);
-  for (int k = __ldg(s.nc_off + i); k < k1; ++k) {
-    const int c = __ldg(s.nc_cell + k);
-    const float4 sv = s.nc_s[k];
-    const float sk[3] = {sv.x, sv.y, sv.z};
-    float R[9];
+  const int k0 = __ldg(s.nc_off + i), k1 = __ldg(s.nc_off + i + 1);
+  for (int k = k0; k < k1; k += kRowBatch) {  // as for_row: a batch's loads first, padded with 0
+    int cs[kRowBatch];
+    float4 sv[kRowBatch];
 #pragma unroll
-    for (int q = 0; q < 9; ++q) R[q] = s.rot[q * s.ncell + c];
-    cell_rhs_add(R, sk, acc);
+    for (int u = 0; u < kRowBatch; ++u) {
+      const bool in = k + u < k1;
+      cs[u] = __ldg(s.nc_cell + (in ? k + u : k));
+      sv[u] = in ? s.nc_s[k + u] : f4(0, 0, 0);
+    }
+#pragma unroll
+    for (int u = 0; u < kRowBatch; ++u) {
+      const float sk[3] = {sv[u].x, sv[u].y, sv[u].z};
+      float R[9];
+      load_rotation(s, cs[u], R);
+      cell_rhs_add(R, sk, acc);
+    }
   }
   return s.g * f4(acc[0], acc[1], acc[2]);
 }
@@ -153,17 +190,18 @@ __device__ __forceinline__ float4 float_residual_at(const System& s, int i) {
 //       + (H_i - (M x)_i)  (in double: the handle term; system.h)
 // The float terms are edge differences (their rounding scales with the cell size, not with the
 // distance from the frame's origin); the handle part is exact up to the rounding of x itself.
-__device__ __forceinline__ float4 residual_at(const System& s, int i) {
+// A pending update (pd) only with exact_residual (the fused kernel folds only then).
+__device__ __forceinline__ float4 residual_at(const System& s, int i, const Pending& pd = {}) {
   if (!s.exact_residual) return float_residual_at(s, i);
-  const SlotEdges edges(s, i);
+  const SlotEdges edges(s, i, pd);
   float4 r = arap_rhs_at(s, i);
   float4 lap = f4(0, 0, 0);  // sum_j w_ij (x_i - x_j)
 #pragma unroll
-  for (int d = 0; d < 6; ++d) lap = lap + edges.weight(d) * (edges.pi - s.x[edges.js[d]]);
+  for (int d = 0; d < 6; ++d) lap = lap + edges.weight(d) * (edges.pi - pd.at(s.x, edges.js[d]));
   {
     const ExtraEdges extra(s, i, edges.pi, edges.ci);
     for (int k = 0; k < extra.size(); ++k)
-      lap = lap + extra.weight(k) * (edges.pi - s.x[__ldg(s.nbx + extra.k0 + k)]);
+      lap = lap + extra.weight(k) * (edges.pi - pd.at(s.x, __ldg(s.nbx + extra.k0 + k)));
   }
   r = r - (2.f * s.g) * lap;
   if (s.anchored[i]) r = r + s.a * (edges.ci - edges.pi);
@@ -171,13 +209,12 @@ __device__ __forceinline__ float4 residual_at(const System& s, int i) {
   if (q0 < q1) {
     const double* h = s.hd + 3 * int64_t(i);
     double hx = h[0], hy = h[1], hz = h[2];
-    for (int q = q0; q < q1; ++q) {
-      const double v = __ldg(s.m_val + q);
-      const float4 xj = s.x[__ldg(s.m_col + q)];
+    for_row(q0, q1, i, s.m_col, s.m_val, [&](double v, int j) {
+      const float4 xj = pd.at(s.x, j);
       hx -= v * double(xj.x);
       hy -= v * double(xj.y);
       hz -= v * double(xj.z);
-    }
+    });
     r = r + f4(float(hx), float(hy), float(hz));
   }
   return r;

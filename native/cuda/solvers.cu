@@ -36,11 +36,14 @@ __device__ __forceinline__ float4 mg_beta(const System& s, int k) {
   return f4(b[0], b[1], b[2]);
 }
 
-// A_k: x += alpha_{k-1} p_{k-1}, r_k = r_{k-1} - alpha_{k-1} q (k > 0); then the pre-smoothed
-// residual r1 = r_k - A (omega D^-1 r_k) restricted into rc[k] (atomics). final: update only.
-__device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool final, float4 al) {
+// A_k: x += alpha_{k-1} p_{k-1}, r_k = r_{k-1} - alpha_{k-1} q (k > 0; k = 0: the previous
+// flip-flop's pending final update, if any); then the pre-smoothed residual
+// r1 = r_k - A (omega D^-1 r_k) restricted into rc[k] (atomics). final: update only.
+__device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool final, float4 al,
+                                          const Pending& pd = {}) {
   const float4* rin = s.r[(k + 1) & 1];  // r_{k-1} (k > 0)
   float4 rn;
+  if (k == 0 && pd.p) s.x[i] = pd.at(s.x, i);
   if (k > 0) {
     rn = rin[i] - cmul(al, s.aq[i]);
     s.x[i] = s.x[i] + cmul(al, s.pb[(k - 1) & 1][i]);
@@ -193,22 +196,55 @@ __global__ void __launch_bounds__(kBlock) mg_d_kernel(System s, int k) {
 }
 
 // ---------------------------------------------------------------- fused two-level flip-flops
+// A phase's items [0, count) for this thread: [begin, end) in steps of step.
+struct Share {
+  int begin, end, step;
+};
+// The grid-stride loop.
+__device__ __forceinline__ Share stride_share(int count) {
+  return {int(blockIdx.x * blockDim.x + threadIdx.x), count, int(gridDim.x * blockDim.x)};
+}
+// The nodes' and the rotation phase's loops: when the grid has a thread for every item, each block
+// takes an even contiguous share (about count / blocks), so that a small lattice keeps every SM
+// busy rather than filling a few blocks and leaving the rest idle (9.9k nodes on 132 SMs: 75 a
+// block, not 256 on 39 blocks); otherwise the grid-stride loop, whose interleaving also balances
+// the rotation phase's two kinds of items. (The third level's coarse nodes keep the grid-stride
+// loop: spread over every block, their restriction's atomics were slower; results-gpu.md,
+// session 24.)
+__device__ __forceinline__ Share share(int count) {
+  if (count > int(gridDim.x * blockDim.x)) return stride_share(count);
+  const int per = (count + gridDim.x - 1) / gridDim.x;
+  const int b0 = blockIdx.x * per;
+  return {b0 + int(threadIdx.x), min(count, b0 + per), int(blockDim.x)};
+}
+
+// With s.stamps set, thread 0 of block 0 (one SM for the whole launch) writes clock64() at the
+// start and after each phase's barrier: stamps[1 + it * fused_phases(s) + phase].
+__device__ __forceinline__ void stamp(const System& s, int& k) {
+  if (s.stamps && blockIdx.x == 0 && threadIdx.x == 0) s.stamps[k] = clock64();
+  ++k;
+}
+
 // One cooperative launch runs `iterations` whole flip-flops (rotations + energy, rhs, `inner`
-// two-level PCG iterations, final update): the phases of the separate kernels above, each a
-// grid-stride loop, separated by grid-wide barriers instead of kernel boundaries.
+// two-level PCG iterations, final update): the phases of the separate kernels above, each a loop
+// over its share of the items, separated by grid-wide barriers instead of kernel boundaries.
 __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int iterations) {
   cg::grid_group grid = cg::this_grid();
   const int tid = blockIdx.x * blockDim.x + threadIdx.x;
   const int stride = gridDim.x * blockDim.x;
+  int st = 0;
+  stamp(s, st);
+  Pending pd;  // the previous flip-flop's final update, not yet applied (none on the first)
   for (int it = 0; it < iterations; ++it) {
     {  // rotations + energy of the previous flip-flop (ARAP and anchors, handle term)
       const bool want_e = it > 0;
       double v[2] = {0.0, 0.0};
-      const int items = s.ncell > s.n ? s.ncell : s.n;
-      for (int k = tid; k < items; k += stride) rotation_item(s, k, true, want_e, v);
+      const Share sh = share(rotation_items(s, want_e));
+      for (int k = sh.begin; k < sh.end; k += sh.step) rotation_item(s, k, true, want_e, v, pd);
       if (want_e) block_add<2>(v, s.energy + 2 * (it - 1));
     }
     grid.sync();
+    stamp(s, st);
     // rhs, r0 = b - A x; fresh scalars and restriction slots
     if (blockIdx.x == 0) {
       for (int k = threadIdx.x; k < (s.inner + 1) * 6; k += blockDim.x) s.dots[k] = 0.0;
@@ -216,17 +252,26 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
     }
     for (int64_t k = tid; k < int64_t(s.inner) * s.nc; k += stride) s.rc[k] = f4(0, 0, 0);
     for (int64_t k = tid; k < int64_t(s.inner) * s.nc2; k += stride) s.rc2[k] = f4(0, 0, 0);
-    for (int i = tid; i < s.n; i += stride) s.r[0][i] = residual_at(s, i);
+    {
+      const Share sh = share(s.n);
+      for (int i = sh.begin; i < sh.end; i += sh.step) s.r[0][i] = residual_at(s, i, pd);
+    }
     grid.sync();
+    stamp(s, st);
     for (int k = 0; k < s.inner; ++k) {
       {
         const float4 al = k > 0 ? mg_alpha(s, k - 1) : f4(0, 0, 0);
-        for (int i = tid; i < s.n; i += stride) mg_a_node(s, i, k, false, al);
+        const Share sh = share(s.n);
+        for (int i = sh.begin; i < sh.end; i += sh.step)
+          mg_a_node(s, i, k, false, al, k == 0 ? pd : Pending{});
       }
       grid.sync();
+      stamp(s, st);
       if (s.nc2 > 0) {  // third level: coarse pre-smoothing, restriction to level 2
-        for (int c = tid; c < s.nc; c += stride) mg_a1_node(s, c, k);
+        const Share sh = stride_share(s.nc);
+        for (int c = sh.begin; c < sh.end; c += sh.step) mg_a1_node(s, c, k);
         grid.sync();
+        stamp(s, st);
       }
       {
         const int lane = threadIdx.x & 31;
@@ -234,29 +279,46 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
         for (int row = tid >> 5; row < nd; row += stride >> 5) coarse_row(s, row, lane, k);
       }
       grid.sync();
+      stamp(s, st);
       if (s.nc2 > 0) {  // third level: prolongation + coarse post-smoothing into zc
-        for (int c = tid; c < s.nc; c += stride) mg_b1_node(s, c, k);
+        const Share sh = stride_share(s.nc);
+        for (int c = sh.begin; c < sh.end; c += sh.step) mg_b1_node(s, c, k);
         grid.sync();
+        stamp(s, st);
       }
       {
         double v[3] = {0, 0, 0};
-        for (int i = tid; i < s.n; i += stride) mg_c_node(s, i, k, v);
+        const Share sh = share(s.n);
+        for (int i = sh.begin; i < sh.end; i += sh.step) mg_c_node(s, i, k, v);
         block_add<3>(v, s.dots + 6 * k);
       }
       grid.sync();
+      stamp(s, st);
       {
         double v[3] = {0, 0, 0};
         const float4 be = k > 0 ? mg_beta(s, k) : f4(0, 0, 0);
-        for (int i = tid; i < s.n; i += stride) mg_d_node(s, i, k, be, v);
+        const Share sh = share(s.n);
+        for (int i = sh.begin; i < sh.end; i += sh.step) mg_d_node(s, i, k, be, v);
         block_add<3>(v, s.dots + 6 * k + 3);
       }
       grid.sync();
+      stamp(s, st);
     }
-    {
-      const float4 al = mg_alpha(s, s.inner - 1);
-      for (int i = tid; i < s.n; i += stride) mg_a_node(s, i, s.inner, true, al);
+    const float4 al = mg_alpha(s, s.inner - 1);
+    if (it + 1 < iterations && s.exact_residual) {
+      // The final update x += al p is left to the next flip-flop (Pending): its rotation and
+      // rhs phases read x through it and its first CG phase applies it, so no barrier here. al is
+      // read now, before the next rhs phase clears the scalars; p (pb[(inner - 1) & 1]) is written
+      // again only by a direction phase, and the first of those follows the first CG phase.
+      pd = Pending{s.pb[(s.inner - 1) & 1], al};
+      stamp(s, st);  // an empty phase, so that the stamps keep their places
+    } else {
+      pd = Pending{};
+      const Share sh = share(s.n);
+      for (int i = sh.begin; i < sh.end; i += sh.step) mg_a_node(s, i, s.inner, true, al);
+      grid.sync();
+      stamp(s, st);
     }
-    grid.sync();
   }
 }
 

@@ -70,7 +70,7 @@ struct System {
   float4* w[2] = {nullptr, nullptr};  // A u
   float4* s[2] = {nullptr, nullptr};  // A p
   float4* x_tmp = nullptr;            // Chebyshev / Jacobi: ping-pong partner of x
-  float* rot = nullptr;               // 9 * ncell, SoA: rot[k * ncell + c], one per cell copy
+  float4* rot = nullptr;              // 3 * ncell: rows a = 0..2 of copy c's rotation at rot[3 c + a]
   // Cell copies (cell_terms.h): corners cell_nodes[q * ncell + c] (real nodes), weights cell_w
   // (null: all 1); per node the copies it is a corner of, nc_off/nc_cell (CSR over n, ascending
   // copies), with w_c times the sum of that corner's 3 rest edges, nc_s (node_cells.h).
@@ -112,6 +112,9 @@ struct System {
   float omega1 = 0.6f;
   float4* rc2 = nullptr;  // inner * nc2
   float4* zc2 = nullptr;  // nc2
+  // Measurement only (LARAP_CUDA_PHASES): when set, the fused kernel's first thread writes its
+  // SM's clock64() at the start and after every grid-wide phase (solvers.h, fused_phases).
+  long long* stamps = nullptr;
 };
 
 }  // namespace cuda

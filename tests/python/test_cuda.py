@@ -4,6 +4,7 @@ Every test is parametrised over larap.available_devices(); the CUDA cases are sk
 reason, where this build or machine has no usable GPU.
 """
 import functools
+import json
 import os
 
 import numpy as np
@@ -299,10 +300,12 @@ def test_unfused_graph_path_agrees_with_cpu(monkeypatch):
 
 
 @need_cuda
-@pytest.mark.parametrize("gamma", [0.1, 0.03])
-def test_fused_matches_unfused_energies(monkeypatch, gamma):
+@pytest.mark.parametrize("gamma,inner", [(0.1, None), (0.03, None), (0.03, "1"), (0.03, "3")])
+def test_fused_matches_unfused_energies(monkeypatch, gamma, inner):
     """The fused cooperative kernel computes the same flip-flops as the per-kernel graph
-    (energies per flip-flop, incl. across its 64-flip-flop launch chunks). Both run in single
+    (energies per flip-flop, incl. across its 64-flip-flop launch chunks, whose last flip-flops
+    apply their final update where the others leave it to the next flip-flop; with 1, 2 and 3
+    inner steps the update left over reads either direction buffer). Both run in single
     precision with one or two inexact inner steps per flip-flop, so while the pose moves most their
     rounding differs from run to run, even on one path (measured 2026-11-22 on an H100, 144 pairs
     of runs: the first energies up to 1.3e-2 apart at gamma 0.03, 0.7 % on the fused path alone);
@@ -310,6 +313,8 @@ def test_fused_matches_unfused_energies(monkeypatch, gamma):
     V, F, h, nl = tube_model()
     T = bend_targets(V, h, nl)
     E = {}
+    if inner:
+        monkeypatch.setenv("LARAP_CUDA_INNER", inner)
     for fused in ("1", "0"):
         monkeypatch.setenv("LARAP_CUDA_FUSED", fused)
         d = larap.Deformer(V, F, cells=1500, device="cuda", gamma=gamma)
@@ -319,6 +324,33 @@ def test_fused_matches_unfused_energies(monkeypatch, gamma):
     assert len(E["1"]) == 130 and np.all(np.isfinite(E["1"]))
     rel = np.abs(E["1"] / E["0"] - 1)
     assert rel.max() < 5e-2 and rel[64:].max() < 5e-6, (rel[:10].max(), rel[64:].max())
+
+
+@need_cuda
+@pytest.mark.parametrize("levels,inner", [("2", "2"), ("3", "1")])
+def test_phase_stamps_name_every_phase(monkeypatch, tmp_path, levels, inner):
+    """LARAP_CUDA_PHASES (measurement only) writes one record per solve with the fused kernel's
+    mean clock cycles per phase of a flip-flop: 3 + 4 per inner step with two multigrid levels,
+    3 + 6 with three; every phase but the final update (empty where it is left to the next
+    flip-flop) takes time, and the stamps change nothing in the pose."""
+    V, F, h, nl = tube_model()
+    T = bend_targets(V, h, nl)
+    monkeypatch.setenv("LARAP_CUDA_MG_LEVELS", levels)
+    monkeypatch.setenv("LARAP_CUDA_INNER", inner)
+    d = larap.Deformer(V, F, cells=1500, device="cuda")
+    d.set_handles(h)
+    X0 = d.solve(T, iterations=70)
+    path = tmp_path / "phases.jsonl"
+    monkeypatch.setenv("LARAP_CUDA_PHASES", str(path))
+    d.set_handles(h)  # options are read here
+    d.reset()
+    X1 = d.solve(T, iterations=70)  # two launches: 64 + 6 flip-flops
+    rec = [json.loads(line) for line in path.read_text().splitlines()]
+    assert len(rec) == 1 and rec[0]["flip_flops"] == 70 and rec[0]["levels"] == int(levels)
+    cycles = rec[0]["cycles"]
+    assert len(cycles) == 3 + int(inner) * (6 if levels == "3" else 4)
+    assert min(cycles[:-1]) > 0 and cycles[-1] < min(cycles[:-1]), cycles
+    assert np.linalg.norm(X1 - X0, axis=1).max() < 1e-5 * diag(V)
 
 
 FAIL_ALLOC = "LARAP_CUDA_FAIL_ALLOC_AFTER_BYTES"

@@ -38,8 +38,8 @@ OPTION_VARS = ("LARAP_CUDA_SOLVER", "LARAP_CUDA_INNER", "LARAP_CUDA_MG_LEVELS", 
 
 
 def phase_names(levels, inner):
-    """In kernel order; "final" is the final update's, empty where it is left to the next flip-flop
-    (all but a launch's last), so its mean is about a sixtieth of one update here."""
+    """In kernel order; "final" is the final update's phase: where the update is left to the next
+    flip-flop (all but a launch's last) it only reads alpha, with no update and no barrier."""
     per = ["a", "a1", "coarse", "b1", "c", "d"] if levels == 3 else ["a", "coarse", "c", "d"]
     return ["rotations", "rhs"] + [f"{p}{k}" for k in range(inner) for p in per] + ["final"]
 

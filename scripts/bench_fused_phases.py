@@ -21,7 +21,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -31,6 +30,7 @@ import numpy as np
 import larap
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import machine_info  # noqa: E402
 from bench_gpu import aim_cells, ellipsoid, first_within, gpu_warmup, handles_and_targets, make, pose, set_env  # noqa: E402
 
 OPTION_VARS = ("LARAP_CUDA_SOLVER", "LARAP_CUDA_INNER", "LARAP_CUDA_MG_LEVELS", "LARAP_CUDA_MG_COARSE",
@@ -161,7 +161,7 @@ def main():
     except OSError:
         gpu = "?"
     meta = {"date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"), "gpu": gpu,
-            "host": platform.node(), "cpus": os.cpu_count(), "larap": os.path.dirname(larap.__file__),
+            "machine": machine_info.describe(), "larap": os.path.dirname(larap.__file__),
             "variants": {n: e for n, e in variants}}
     print(json.dumps(meta))
     results = []

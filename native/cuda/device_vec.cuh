@@ -52,9 +52,10 @@ __device__ void block_add(double (&v)[NV], double* dst) {
 // body(val[q], col[q]) for q in [q0, q1), in order, kRowBatch entries at a time: a batch's
 // column and value loads are all issued before the first of its gathers, so that a long row (a
 // handle node's: about 20 remainder entries of A, 27 of M) costs a few load latencies, not two
-// per entry. A batch is padded with (0, pad): a zero term on a row the caller reads anyway, so
-// the sums are the loop's (bit for bit, but for the sign of an exact zero, and a non-finite
-// value at the node itself would make its zero term NaN; docs/results-gpu.md, session 24).
+// per entry. A batch is padded with (zero, pad): a zero term on an entry the caller reads
+// anyway, so the sums are the loop's (bit for bit, but for the sign of an exact zero, and a
+// non-finite value at the padding entry would make its zero term NaN; docs/results-gpu.md,
+// session 24).
 constexpr int kRowBatch = 8;
 template <class V, class F>
 __device__ __forceinline__ void for_row(int q0, int q1, int pad, const int* __restrict__ col,
@@ -66,7 +67,7 @@ __device__ __forceinline__ void for_row(int q0, int q1, int pad, const int* __re
     for (int u = 0; u < kRowBatch; ++u) {
       const bool in = q + u < q1;  // a padded entry loads nothing (the loads are under `in`)
       js[u] = in ? __ldg(col + q + u) : pad;
-      vs[u] = in ? __ldg(val + q + u) : V(0);
+      vs[u] = in ? __ldg(val + q + u) : V{};
     }
 #pragma unroll
     for (int u = 0; u < kRowBatch; ++u) body(vs[u], js[u]);

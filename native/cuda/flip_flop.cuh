@@ -148,24 +148,14 @@ __device__ __forceinline__ void rotation_item(const System& s, int k, bool write
 // is a corner of (cell_terms.h, node_cells.h).
 __device__ __forceinline__ float4 arap_rhs_at(const System& s, int i) {
   float acc[3] = {0.f, 0.f, 0.f};
-  const int k0 = __ldg(s.nc_off + i), k1 = __ldg(s.nc_off + i + 1);
-  for (int k = k0; k < k1; k += kRowBatch) {  // as for_row: a batch's loads first, padded with 0
-    int cs[kRowBatch];
-    float4 sv[kRowBatch];
-#pragma unroll
-    for (int u = 0; u < kRowBatch; ++u) {
-      const bool in = k + u < k1;
-      cs[u] = __ldg(s.nc_cell + (in ? k + u : k));
-      sv[u] = in ? s.nc_s[k + u] : f4(0, 0, 0);
-    }
-#pragma unroll
-    for (int u = 0; u < kRowBatch; ++u) {
-      const float sk[3] = {sv[u].x, sv[u].y, sv[u].z};
-      float R[9];
-      load_rotation(s, cs[u], R);
-      cell_rhs_add(R, sk, acc);
-    }
-  }
+  // Batched as a row (for_row); a padded entry is copy 0 with a zero edge sum (a node with copies
+  // means ncell > 0).
+  for_row(__ldg(s.nc_off + i), __ldg(s.nc_off + i + 1), 0, s.nc_cell, s.nc_s, [&](float4 sv, int c) {
+    const float sk[3] = {sv.x, sv.y, sv.z};
+    float R[9];
+    load_rotation(s, c, R);
+    cell_rhs_add(R, sk, acc);
+  });
   return s.g * f4(acc[0], acc[1], acc[2]);
 }
 

@@ -55,7 +55,7 @@ class CudaBackend final : public Backend {
   // K on the host (O(m)), H uploaded.
   void set_targets(const HandleTargets& targets) override;
   // Per lattice component: a device reduction over the handle nodes, O(components) downloaded.
-  void moments(bool rest, std::vector<ComponentMoments>& out) override;
+  void moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) override;
   // Per lattice component x -> R x + t (centred frame, as the moments), one kernel.
   void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override;
 
@@ -80,6 +80,8 @@ class CudaBackend final : public Backend {
   }
   // The stencil shell's rows of x from the real rows (after every change of the real rows).
   void fill_shell();
+  // One pose's moments per component from kMomentValues doubles each (handles.h's order).
+  void unpack_moments(const double* h, std::vector<ComponentMoments>& out) const;
 
   float4 to_f4(const Eigen::Vector3d& p) const {
     const Eigen::Vector3d c = p - origin_;
@@ -182,6 +184,7 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<double> dots_, energy_;
   cuda::DeviceBuffer<unsigned> counters_;
   cuda::PinnedBuffer<double> h_energy_;
+  mutable cuda::PinnedBuffer<float4> h_pose_;  // set_pose / get_pose: page-locked, one copy each way
   cuda::DeviceBuffer<long long> stamps_;  // LARAP_CUDA_PHASES only
   cuda::PinnedBuffer<char> staging_;
   DevBinding bind_[2];

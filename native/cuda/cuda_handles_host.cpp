@@ -48,17 +48,23 @@ void CudaBackend::set_targets(const HandleTargets& targets) {
   targets_set_ = true;
 }
 
-void CudaBackend::moments(bool rest, std::vector<ComponentMoments>& out) {
+void CudaBackend::moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) {
   if (!ready_ || !targets_set_) throw StateError("set_handles and set_targets must come before moments");
   const int nc = moment_chunks_.components;
-  cuda::launch_moments(sys_, rest ? sys_.rest : sys_.x, moment_chunks_, mom_partial_.get(), mom_out_.get(),
-                       stream_);
+  cuda::launch_moments(sys_, moment_chunks_, mom_partial_.get(), mom_out_.get(), stream_);  // pose and rest
   LARAP_CUDA_CHECK(cudaGetLastError());
-  const size_t nv = size_t(cuda::kMomentValues) * nc;
-  double* h = h_moments_.get();
+  const size_t nv = size_t(2 * cuda::kMomentValues) * nc;
+  const double* h = h_moments_.get();
   if (nv)
-    LARAP_CUDA_CHECK(cudaMemcpyAsync(h, mom_out_.get(), sizeof(double) * nv, cudaMemcpyDeviceToHost, stream_));
+    LARAP_CUDA_CHECK(cudaMemcpyAsync(h_moments_.get(), mom_out_.get(), sizeof(double) * nv,
+                                     cudaMemcpyDeviceToHost, stream_));
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  unpack_moments(h, now);
+  unpack_moments(h + size_t(cuda::kMomentValues) * nc, rest);
+}
+
+void CudaBackend::unpack_moments(const double* h, std::vector<ComponentMoments>& out) const {
+  const int nc = moment_chunks_.components;
   out.assign(size_t(nc), ComponentMoments{});
   for (int c = 0; c < nc; ++c) {
     const double* v = h + size_t(cuda::kMomentValues) * c;

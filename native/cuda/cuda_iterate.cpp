@@ -27,6 +27,7 @@ void CudaBackend::iterate(int iterations, SolveStats& stats) {
   LARAP_CUDA_CHECK(cudaMemsetAsync(sys_.energy, 0, sizeof(double) * 2 * iterations, stream_));
   const bool profile = !opt_.profile_path.empty();
   double ms_rot = 0, ms_rhs = 0, ms_sol = 0;
+  bool last_energy_done = false;  // the fused kernel sums the last flip-flop's energy itself
   LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
   if (profile) {
     for (int it = 0; it < iterations; ++it) {
@@ -48,7 +49,8 @@ void CudaBackend::iterate(int iterations, SolveStats& stats) {
     LARAP_CUDA_CHECK(cudaEventRecord(ev_[0].get(), stream_));
   } else if (opt_.solver == cuda::Solver::Multigrid && opt_.fused && fused_blocks() > 0) {
     // One cooperative launch for all flip-flops (energy of flip-flop it - 1 in its rotation
-    // phase, as in the graph); at most kFusedChunk flip-flops a launch.
+    // phase, as in the graph; a launch's last flip-flop's at its end); at most kFusedChunk
+    // flip-flops a launch.
     constexpr int kFusedChunk = 64;
     const int phases = cuda::fused_phases(sys_);
     std::vector<double> cycles;  // LARAP_CUDA_PHASES: per phase, summed over the flip-flops
@@ -59,10 +61,6 @@ void CudaBackend::iterate(int iterations, SolveStats& stats) {
       sc.energy = sys_.energy + 2 * it0;
       const int cnt = std::min(kFusedChunk, iterations - it0);
       if (!cycles.empty()) sc.stamps = stamps_.reserve(size_t(1) + size_t(cnt) * phases);
-      if (it0 > 0) {  // the first rotation phase of this chunk adds flip-flop it0 - 1's energy
-        cuda::launch_rotations(sys_, false, it0 - 1, stream_);
-        LARAP_CUDA_CHECK(cudaGetLastError());
-      }
       LARAP_CUDA_CHECK(cuda::launch_mg_fused(sc, cnt, fused_blocks(), stream_));
       if (!cycles.empty()) {  // a synchronisation per chunk: measurement only
         st.resize(size_t(1) + size_t(cnt) * phases);
@@ -73,14 +71,17 @@ void CudaBackend::iterate(int iterations, SolveStats& stats) {
       }
     }
     if (!cycles.empty()) write_phases(cycles, iterations);
+    last_energy_done = true;
   } else if (opt_.graph) {
     if (!graph_.get()) build_graph();
     for (int it = 0; it < iterations; ++it) LARAP_CUDA_CHECK(cudaGraphLaunch(graph_.get(), stream_));
   } else {
     for (int it = 0; it < iterations; ++it) flip_flop();
   }
-  cuda::launch_rotations(sys_, false, iterations - 1, stream_);  // energy of the last pose
-  LARAP_CUDA_CHECK(cudaGetLastError());
+  if (!last_energy_done) {
+    cuda::launch_rotations(sys_, false, iterations - 1, stream_);  // energy of the last pose
+    LARAP_CUDA_CHECK(cudaGetLastError());
+  }
   fill_shell();
   LARAP_CUDA_CHECK(cudaEventRecord(ev_[1].get(), stream_));
   LARAP_CUDA_CHECK(cudaMemcpyAsync(h_energy_.get(), sys_.energy, sizeof(double) * 2 * iterations,
@@ -199,18 +200,16 @@ double CudaBackend::total_energy(double arap, double handles) const {
 
 void CudaBackend::set_pose(const RowMatrixX3d& nodes) {
   if (nodes.rows() < n_) throw InvalidInput("set_pose: fewer rows than the lattice's real nodes");
-  std::vector<float4> h(static_cast<size_t>(n_));
+  float4* h = h_pose_.reserve(size_t(n_));
   for (int i = 0; i < n_; ++i) h[i] = to_f4(nodes.row(i).transpose());
-  LARAP_CUDA_CHECK(
-      cudaMemcpyAsync(sys_.x, h.data(), h.size() * sizeof(float4), cudaMemcpyHostToDevice, stream_));
+  LARAP_CUDA_CHECK(cudaMemcpyAsync(sys_.x, h, sizeof(float4) * n_, cudaMemcpyHostToDevice, stream_));
   fill_shell();
-  LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
+  LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // h_pose_ may be written again
 }
 
 void CudaBackend::get_pose(RowMatrixX3d& nodes) const {
-  std::vector<float4> h(static_cast<size_t>(n_all_));
-  LARAP_CUDA_CHECK(
-      cudaMemcpyAsync(h.data(), sys_.x, h.size() * sizeof(float4), cudaMemcpyDeviceToHost, stream_));
+  float4* h = h_pose_.reserve(size_t(n_all_));
+  LARAP_CUDA_CHECK(cudaMemcpyAsync(h, sys_.x, sizeof(float4) * n_all_, cudaMemcpyDeviceToHost, stream_));
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
   nodes.resize(n_all_, 3);
   for (int i = 0; i < n_all_; ++i) nodes.row(i) = from_f4(h[i]).transpose();

@@ -154,9 +154,9 @@ void CudaBackend::upload_moment_chunks(const HandleSystem& hs) {
   moment_chunks_.nodes = mc_nodes_.upload(mc_nodes_host_.data(), mc_nodes_host_.size(), stream_);
   moment_chunks_.chunk_off = mc_chunk_off_.upload(mc_chunk_off_host_.data(), mc_chunk_off_host_.size(), stream_);
   moment_chunks_.comp_chunk_off = mc_comp_off_.upload(mc_comp_off_host_.data(), mc_comp_off_host_.size(), stream_);
-  mom_partial_.reserve(size_t(cuda::kMomentValues) * std::max(moment_chunks_.chunks, 1));
-  mom_out_.reserve(size_t(cuda::kMomentValues) * std::max(nc, 1));
-  h_moments_.reserve(size_t(cuda::kMomentValues) * std::max(nc, 1));
+  mom_partial_.reserve(size_t(2 * cuda::kMomentValues) * std::max(moment_chunks_.chunks, 1));  // pose, rest
+  mom_out_.reserve(size_t(2 * cuda::kMomentValues) * std::max(nc, 1));
+  h_moments_.reserve(size_t(2 * cuda::kMomentValues) * std::max(nc, 1));
 }
 
 void CudaBackend::upload_multigrid(const cuda::Multigrid& mg) {

@@ -27,12 +27,13 @@ __global__ void __launch_bounds__(kBlock)
   h[i] = f4(float(acc[0]), float(acc[1]), float(acc[2]));
 }
 
-// One block per chunk (at most kBlock nodes of one component): the chunk's sums into
-// partial[kMomentValues * chunk ..].
-__global__ void __launch_bounds__(kBlock)
-    moments_chunk_kernel(System s, const float4* __restrict__ pos, MomentChunks mc, double* partial) {
+// One block per chunk (at most kBlock nodes of one component) and pose (blockIdx.y: 0 the pose
+// s.x, 1 the rest lattice): the chunk's sums into partial[kMomentValues * (chunks * pose + chunk) ..].
+__global__ void __launch_bounds__(kBlock) moments_chunk_kernel(System s, MomentChunks mc, double* partial) {
   constexpr int K = kMomentValues;
   const int chunk = blockIdx.x;
+  const float4* __restrict__ pos = blockIdx.y ? s.rest : s.x;
+  partial += int64_t(K) * mc.chunks * blockIdx.y;
   const int idx = __ldg(mc.chunk_off + chunk) + threadIdx.x;
   double v[K];
 #pragma unroll
@@ -81,12 +82,13 @@ __global__ void __launch_bounds__(kBlock)
   }
 }
 
-// One thread per (component, value): the component's chunks summed in order.
+// One thread per (pose, component, value): the component's chunks summed in order.
 __global__ void moments_sum_kernel(MomentChunks mc, const double* __restrict__ partial, double* out) {
   constexpr int K = kMomentValues;
   const int t = blockIdx.x * blockDim.x + threadIdx.x;
-  if (t >= mc.components * K) return;
-  const int c = t / K, k = t % K;
+  if (t >= 2 * mc.components * K) return;
+  const int pose = t / (mc.components * K), c = t / K % mc.components, k = t % K;
+  partial += int64_t(K) * mc.chunks * pose;
   double sum = 0.0;
   for (int ch = mc.comp_chunk_off[c]; ch < mc.comp_chunk_off[c + 1]; ++ch) sum += partial[int64_t(K) * ch + k];
   out[t] = sum;
@@ -111,11 +113,10 @@ void launch_group_rhs(const System& s, const GroupEntries& e, const double* maps
   if (s.n) group_rhs_kernel<<<blocks_for(s.n), kBlock, 0, st>>>(s, e, maps, h, hd);
 }
 
-void launch_moments(const System& s, const float4* pos, const MomentChunks& mc, double* partial, double* out,
-                    cudaStream_t st) {
-  if (mc.chunks > 0) moments_chunk_kernel<<<mc.chunks, kBlock, 0, st>>>(s, pos, mc, partial);
-  if (mc.components > 0)
-    moments_sum_kernel<<<blocks_for(int64_t(mc.components) * kMomentValues), kBlock, 0, st>>>(mc, partial, out);
+void launch_moments(const System& s, const MomentChunks& mc, double* partial, double* out, cudaStream_t st) {
+  if (mc.chunks > 0) moments_chunk_kernel<<<dim3(mc.chunks, 2), kBlock, 0, st>>>(s, mc, partial);
+  const int64_t sums = int64_t(2) * mc.components * kMomentValues;  // (pose, component, value)
+  if (sums > 0) moments_sum_kernel<<<blocks_for(sums), kBlock, 0, st>>>(mc, partial, out);
 }
 
 void launch_component_rigid(const System& s, const int* component, const float* motions, bool from_rest,

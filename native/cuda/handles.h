@@ -50,10 +50,10 @@ struct MomentChunks {
   const double* m_val = nullptr;
 };
 
-// out[kMomentValues c + k] for every component c, of the pose `pos` (s.x or s.rest) against the
-// current H (s.hd) with M (mc.m_*); partial: kMomentValues * chunks scratch.
-void launch_moments(const System& s, const float4* pos, const MomentChunks& mc, double* partial, double* out,
-                    cudaStream_t st);
+// out[kMomentValues c + k] for every component c, of the pose s.x against the current H (s.hd)
+// with M (mc.m_*), and out[kMomentValues (components + c) + k] of the rest lattice s.rest, from
+// one launch of each of the two kernels; partial: 2 kMomentValues chunks scratch.
+void launch_moments(const System& s, const MomentChunks& mc, double* partial, double* out, cudaStream_t st);
 
 // Per component c: motions[16 c .. 16 c + 16) = R (row-major 3x3), t (3), active (1 or 0), 3
 // unused. x_i = R p_i + t for every node that is not anchored and whose component's motion is

@@ -227,7 +227,8 @@ __device__ __forceinline__ void stamp(const System& s, int& k) {
 
 // One cooperative launch runs `iterations` whole flip-flops (rotations + energy, rhs, `inner`
 // two-level PCG iterations, final update): the phases of the separate kernels above, each a loop
-// over its share of the items, separated by grid-wide barriers instead of kernel boundaries.
+// over its share of the items, separated by grid-wide barriers instead of kernel boundaries; then
+// the energy of its last flip-flop (energy slot iterations - 1).
 __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int iterations) {
   cg::grid_group grid = cg::this_grid();
   const int tid = blockIdx.x * blockDim.x + threadIdx.x;
@@ -319,6 +320,13 @@ __global__ void __launch_bounds__(kBlock, 1) mg_fused_kernel(System s, int itera
       grid.sync();
       stamp(s, st);
     }
+  }
+  {  // the energy of the launch's last pose with its rotations: no kernel after the loop for it,
+     // and no barrier after it (the launch ends; the next launch's first flip-flop adds none)
+    double v[2] = {0.0, 0.0};
+    const Share sh = share(rotation_items(s, true));
+    for (int k = sh.begin; k < sh.end; k += sh.step) rotation_item(s, k, false, true, v);
+    block_add<2>(v, s.energy + 2 * (iterations - 1));
   }
 }
 

@@ -40,9 +40,10 @@ class Backend {
   // The current lattice pose (#N by 3).
   virtual void set_pose(const RowMatrixX3d& nodes) = 0;
   virtual void get_pose(RowMatrixX3d& nodes) const = 0;
-  // Per lattice component, the moments of the handle rows for the current pose (or the rest
-  // lattice) against the targets (warm_start.h).
-  virtual void moments(bool rest, std::vector<ComponentMoments>& out) = 0;
+  // Per lattice component, the moments of the handle rows against the targets (warm_start.h),
+  // for the current pose and for the rest lattice: both in one call, so that a device backend
+  // computes and copies them back with one synchronisation a pose.
+  virtual void moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) = 0;
   // Per lattice component: x -> R x + t on its nodes (from_rest: on its rest positions) where
   // the motion is active; other components keep their pose.
   virtual void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) = 0;

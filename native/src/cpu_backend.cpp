@@ -108,22 +108,9 @@ class CpuBackend final : public Backend {
   }
   void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
 
-  void moments(bool rest, std::vector<ComponentMoments>& out) override {
-    const RowMatrixX3d& P = rest ? lat_.rest : pose_;
-    const RowMatrixX3d Pc = P.topRows(nr_).rowwise() - hs_.origin.transpose();
-    const RowMatrixX3d MP = M_ * Pc;  // M is symmetric
-    out.assign(size_t(hs_.num_components), ComponentMoments{});
-    for (int64_t i = 0; i < nr_; ++i) {
-      if (hs_.q[i] == 0.0) continue;
-      ComponentMoments& m = out[hs_.node_component[i]];
-      const Eigen::Vector3d p = Pc.row(i).transpose(), h = H_.row(i).transpose();
-      m.w += hs_.q[i];
-      m.p += hs_.q[i] * p;
-      m.t += h;
-      m.pt += p * h.transpose();
-      m.pp += p * MP.row(i);
-    }
-    for (size_t c = 0; c < out.size(); ++c) out[c].tt = K_[c];
+  void moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) override {
+    moments_of(pose_, now);
+    moments_of(lat_.rest, rest);
   }
 
   void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override {
@@ -180,6 +167,24 @@ class CpuBackend final : public Backend {
   void transfer(const Binding& b, float* out, SolveStats& stats) override { transfer_any(b, out, stats); }
 
  private:
+  // The moments of the handle rows for the pose P (moments()).
+  void moments_of(const RowMatrixX3d& P, std::vector<ComponentMoments>& out) const {
+    const RowMatrixX3d Pc = P.topRows(nr_).rowwise() - hs_.origin.transpose();
+    const RowMatrixX3d MP = M_ * Pc;  // M is symmetric
+    out.assign(size_t(hs_.num_components), ComponentMoments{});
+    for (int64_t i = 0; i < nr_; ++i) {
+      if (hs_.q[i] == 0.0) continue;
+      ComponentMoments& m = out[hs_.node_component[i]];
+      const Eigen::Vector3d p = Pc.row(i).transpose(), h = H_.row(i).transpose();
+      m.w += hs_.q[i];
+      m.p += hs_.q[i] * p;
+      m.t += h;
+      m.pt += p * h.transpose();
+      m.pp += p * MP.row(i);
+    }
+    for (size_t c = 0; c < out.size(); ++c) out[c].tt = K_[c];
+  }
+
   template <typename T>
   void transfer_any(const Binding& b, T* out, SolveStats& stats) {
     const auto t0 = Clock::now();

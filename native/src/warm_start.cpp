@@ -61,8 +61,7 @@ std::vector<uint8_t> held_components(const std::vector<std::array<int32_t, 2>>& 
 
 void warm_start(Backend& backend, double still, SolveStats& stats, const std::vector<uint8_t>& held) {
   std::vector<ComponentMoments> now, rest;
-  backend.moments(/*rest=*/false, now);
-  backend.moments(/*rest=*/true, rest);
+  backend.moments(now, rest);
   const size_t nc = now.size();
   std::vector<ComponentMotion> carry(nc), from_rest(nc);
   bool any_carry = false, any_rest = false;

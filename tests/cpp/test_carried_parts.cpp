@@ -262,8 +262,8 @@ TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
   RowMatrixX3d pose = lat.rest;  // every node moved differently: the glue is stretched
   for (int64_t i = 0; i < pose.rows(); ++i) pose.row(i) += Eigen::RowVector3d(0.01 * (i % 7), -0.02 * (i % 5), 0.03 * (i % 3));
   backend->set_pose(pose);
-  std::vector<ComponentMoments> got;
-  backend->moments(false, got);
+  std::vector<ComponentMoments> got, at_rest;
+  backend->moments(got, at_rest);
 
   ComponentMoments want;
   for (int64_t j = 0; j < 8; ++j) {

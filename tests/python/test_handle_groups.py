@@ -83,6 +83,20 @@ def test_the_warm_start_alone_gives_a_rigid_pose(tube, device, offset):
     assert err <= tol(device, 1e-7, 1e-5) * diagonal(V), err
 
 
+
+def test_the_warm_start_goes_back_to_rest_at_once(tube, device):
+    """After a bend, every group back at rest: the warm start weighs carrying the bent pose
+    against starting from the rest lattice (the moments of both from one pass on the device), and
+    the rest start is exact, so the pose is the rest pose without an iteration."""
+    V, F = tube
+    d = larap.Deformer(V, F, cells=800, device=device)
+    d.set_handle_groups(ends(V))
+    X = d.solve(transforms=np.stack(bend(V)), iterations=20)
+    assert np.linalg.norm(X - V, axis=1).max() > 0.2 * diagonal(V)  # bent
+    X = d.solve(transforms=np.stack([np.eye(4)] * 2), iterations=0)
+    err = np.linalg.norm(X - V, axis=1).max()
+    assert err <= tol(device, 1e-9, 1e-5) * diagonal(V), err
+
 def miss_of_small_group(V, F, device, base_size):
     """A 12-vertex tip group turned, next to a base group of `base_size` vertices held still,
     spread over the same region (the first 336 vertices along the tube) whatever their number,

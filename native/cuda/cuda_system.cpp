@@ -167,6 +167,11 @@ void CudaBackend::upload_multigrid(const cuda::Multigrid& mg) {
   // and the CPU: 0.07%; docs/cuda.md, "Options").
   sys_.nc = mg.nc;
   sys_.agg = agg_.upload(mg.agg.data(), mg.agg.size(), stream_);
+  // The slots' aggregates beside the slots: the coarse correction's gather (mg_c_node) then reads
+  // zc two loads deep (slot, then value) instead of three (slot, aggregate, value).
+  nb_agg_host_.resize(nbr_host_.size());
+  for (size_t k = 0; k < nbr_host_.size(); ++k) nb_agg_host_[k] = mg.agg[size_t(nbr_host_[k])];
+  sys_.nb_agg = nb_agg_.upload(nb_agg_host_.data(), nb_agg_host_.size(), stream_);
   sys_.rc = rc_.reserve(size_t(inner_) * mg.nc);
   sys_.zc = zc_.reserve(size_t(mg.nc));
   sys_.z = sys_.x_tmp;

@@ -17,6 +17,16 @@ __device__ __forceinline__ float4 f4(float x, float y, float z) { return make_fl
 __device__ __forceinline__ float4 operator+(float4 a, float4 b) {
   return f4(a.x + b.x, a.y + b.y, a.z + b.z);
 }
+// *dst += v (x, y, z; w is 0 in both): one vector atomic on compute capability 9.x, three before.
+__device__ __forceinline__ void atomic_add(float4* dst, float4 v) {
+#if __CUDA_ARCH__ >= 900
+  atomicAdd(dst, v);
+#else
+  atomicAdd(&dst->x, v.x);
+  atomicAdd(&dst->y, v.y);
+  atomicAdd(&dst->z, v.z);
+#endif
+}
 __device__ __forceinline__ float4 operator-(float4 a, float4 b) {
   return f4(a.x - b.x, a.y - b.y, a.z - b.z);
 }
@@ -90,6 +100,27 @@ __device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
   for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d]);
   const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
   for_row(q0, q1, i, s.rem_col, s.rem_val, [&](float v, int j) { acc = acc + v * get(j); });
+  return acc;
+}
+
+// The same row with get(j, a) also given j's coarse aggregate a: the slots' aggregates are read
+// beside the slots (s.nb_agg), so a gather from a coarse vector is two loads deep, not three (the
+// remainder's entries read theirs from s.agg).
+template <class F>
+__device__ __forceinline__ float4 spmv_row_agg(const System& s, int i, F get) {
+  int js[6], gs[6];
+  float as[6];
+#pragma unroll
+  for (int d = 0; d < 6; ++d) {
+    js[d] = __ldg(s.nbr + d * s.n + i);
+    gs[d] = __ldg(s.nb_agg + d * s.n + i);
+    as[d] = __ldg(s.a_nb + d * s.n + i);
+  }
+  float4 acc = __ldg(s.a_diag + i) * get(i, __ldg(s.agg + i));
+#pragma unroll
+  for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d], gs[d]);
+  const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
+  for_row(q0, q1, i, s.rem_col, s.rem_val, [&](float v, int j) { acc = acc + v * get(j, __ldg(s.agg + j)); });
   return acc;
 }
 

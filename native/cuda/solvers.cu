@@ -59,9 +59,7 @@ __device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool fi
                           : spmv_row(s, i, [&](int j) { return __ldg(minv + j) * rk[j]; });
   const float4 r1 = rn - s.omega * ar;
   float4* dst = s.rc + int64_t(k) * s.nc + s.agg[i];
-  atomicAdd(&dst->x, r1.x);
-  atomicAdd(&dst->y, r1.y);
-  atomicAdd(&dst->z, r1.z);
+  atomic_add(dst, r1);
 }
 
 __global__ void __launch_bounds__(kBlock) mg_a_kernel(System s, int k, bool final) {
@@ -120,9 +118,7 @@ __device__ __forceinline__ void mg_a1_node(const System& s, int c, int k) {
   const float4 ay = coarse_spmv(s, c, [&](int j) { return (om * __ldg(mi + j)) * rc[j]; });
   const float4 r1 = rc[c] - ay;
   float4* dst = s.rc2 + int64_t(k) * s.nc2 + s.agg2[c];
-  atomicAdd(&dst->x, r1.x);
-  atomicAdd(&dst->y, r1.y);
-  atomicAdd(&dst->z, r1.z);
+  atomic_add(dst, r1);
 }
 
 // Third level, B1_k: z2 = y + P2 zc2; zc = z2 + omega1 Dc^-1 (rc - Ac1 z2) (neighbours' z2
@@ -156,9 +152,8 @@ __device__ __forceinline__ void mg_c_node(const System& s, int i, int k, double 
   const float4 ri = r[i];
   const float om = s.omega;
   const float* minv = s.minv;
-  const int* agg = s.agg;
   const float4* zc = s.zc;
-  const float4 az = spmv_row(s, i, [&](int j) { return (om * __ldg(minv + j)) * r[j] + zc[__ldg(agg + j)]; });
+  const float4 az = spmv_row_agg(s, i, [&](int j, int a) { return (om * __ldg(minv + j)) * r[j] + zc[a]; });
   const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
   const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
   s.z[i] = zi;

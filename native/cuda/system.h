@@ -92,6 +92,7 @@ struct System {
   // inverse of the Galerkin coarse operator P^T A P, damped Jacobi smoothing (weight omega).
   int nc = 0;                          // coarse nodes
   const int* agg = nullptr;            // n, coarse id of each fine node
+  const int* nb_agg = nullptr;         // 6 n, slot-major like nbr: agg of each slot's neighbour
   const float* ainv = nullptr;         // nc * nc, row-major
   float4* rc = nullptr;                // inner * nc: restricted residual per iteration
   float4* zc = nullptr;                // nc

@@ -200,10 +200,15 @@ double CudaBackend::total_energy(double arap, double handles) const {
 
 void CudaBackend::set_pose(const RowMatrixX3d& nodes) {
   if (nodes.rows() < n_) throw InvalidInput("set_pose: fewer rows than the lattice's real nodes");
-  float4* h = h_pose_.reserve(size_t(n_));
+  float4* h = h_pose_.reserve(size_t(n_all_));  // get_pose's size: one allocation for both
   for (int i = 0; i < n_; ++i) h[i] = to_f4(nodes.row(i).transpose());
   LARAP_CUDA_CHECK(cudaMemcpyAsync(sys_.x, h, sizeof(float4) * n_, cudaMemcpyHostToDevice, stream_));
-  fill_shell();
+  try {
+    fill_shell();
+  } catch (...) {
+    cudaStreamSynchronize(stream_);  // the copy reads h_pose_: done before anything writes it again
+    throw;
+  }
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // h_pose_ may be written again
 }
 

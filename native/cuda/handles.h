@@ -3,9 +3,10 @@
 // maths, native/src/warm_start.h the warm start that uses the moments and motions):
 //   * H of a pose given by one affine map per group, from the per-node group entries
 //     (q_g[i], P_g[i]) uploaded once per handle set;
-//   * the moments of the handle rows per lattice component, one block per chunk of the handle
-//     nodes (chunks never straddle components), then the chunks of each component summed in a
-//     fixed order (deterministic);
+//   * the moments of the handle rows per lattice component, for the pose and the rest lattice
+//     in one launch: one block per chunk of the handle nodes (chunks never straddle
+//     components) and pose, then the chunks of each component summed in a fixed order
+//     (deterministic);
 //   * one rigid motion per lattice component applied to the pose or the rest lattice.
 // Internal to native/cuda.
 #pragma once

@@ -18,7 +18,8 @@ void launch_mg_final(const System& s, cudaStream_t st);
 // The same, fused: `iterations` whole flip-flops (rotations with the energy of the previous
 // flip-flop into energy[it - 1], rhs, the preconditioned CG) in one cooperative launch of
 // `blocks` blocks (each phase a loop over its share of the items, grid-wide barriers between
-// the phases; each flip-flop's final update but the launch's last is left to the next one).
+// the phases; each flip-flop's final update but the launch's last is left to the next one), and
+// after them the last pose's energy into energy[iterations - 1].
 cudaError_t launch_mg_fused(const System& s, int iterations, int blocks, cudaStream_t st);
 // Phases of one fused flip-flop (rotations, rhs, per inner iteration 4 or, with three levels, 6,
 // the final update, which is empty where it is left to the next flip-flop): with System::stamps

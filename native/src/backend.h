@@ -42,7 +42,8 @@ class Backend {
   virtual void get_pose(RowMatrixX3d& nodes) const = 0;
   // Per lattice component, the moments of the handle rows against the targets (warm_start.h),
   // for the current pose and for the rest lattice: both in one call, so that a device backend
-  // computes and copies them back with one synchronisation a pose.
+  // computes and copies them back with one synchronisation a pose. `now` and `rest` are two
+  // different vectors.
   virtual void moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) = 0;
   // Per lattice component: x -> R x + t on its nodes (from_rest: on its rest positions) where
   // the motion is active; other components keep their pose.

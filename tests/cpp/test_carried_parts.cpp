@@ -265,20 +265,24 @@ TEST(CarriedParts, MomentsSeeTheHandleRowsOnly) {
   std::vector<ComponentMoments> got, at_rest;
   backend->moments(got, at_rest);
 
-  ComponentMoments want;
-  for (int64_t j = 0; j < 8; ++j) {
-    Eigen::Vector3d p = -origin;
-    for (int k = 0; k < 8; ++k) p += w[size_t(j) * 8 + k] * pose.row(ids[size_t(j) * 8 + k]).transpose();
-    const Eigen::Vector3d t = targets.row(j).transpose() - origin;
-    const double a = hs.alpha[size_t(j)];
-    want.w += a;
-    want.p += a * p;
-    want.t += a * t;
-    want.pt += a * p * t.transpose();
-    want.pp += a * p * p.transpose();
-    want.tt += a * t.squaredNorm();
-  }
-  test::expect_moments_near(got[size_t(hs.row_component[0])], want, 1e-12);
+  const auto want_of = [&](const RowMatrixX3d& x) {  // the handle rows' moments of the pose x
+    ComponentMoments want;
+    for (int64_t j = 0; j < 8; ++j) {
+      Eigen::Vector3d p = -origin;
+      for (int k = 0; k < 8; ++k) p += w[size_t(j) * 8 + k] * x.row(ids[size_t(j) * 8 + k]).transpose();
+      const Eigen::Vector3d t = targets.row(j).transpose() - origin;
+      const double a = hs.alpha[size_t(j)];
+      want.w += a;
+      want.p += a * p;
+      want.t += a * t;
+      want.pt += a * p * t.transpose();
+      want.pp += a * p * p.transpose();
+      want.tt += a * t.squaredNorm();
+    }
+    return want;
+  };
+  test::expect_moments_near(got[size_t(hs.row_component[0])], want_of(pose), 1e-12);
+  test::expect_moments_near(at_rest[size_t(hs.row_component[0])], want_of(lat.rest), 1e-12);
 }
 
 // A ring around finger B of a hand whose fingers A and B are split apart but one component: the

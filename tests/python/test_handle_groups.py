@@ -83,7 +83,6 @@ def test_the_warm_start_alone_gives_a_rigid_pose(tube, device, offset):
     assert err <= tol(device, 1e-7, 1e-5) * diagonal(V), err
 
 
-
 def test_the_warm_start_goes_back_to_rest_at_once(tube, device):
     """After a bend, every group back at rest: the warm start weighs carrying the bent pose
     against starting from the rest lattice (the moments of both from one pass on the device), and
@@ -96,6 +95,7 @@ def test_the_warm_start_goes_back_to_rest_at_once(tube, device):
     X = d.solve(transforms=np.stack([np.eye(4)] * 2), iterations=0)
     err = np.linalg.norm(X - V, axis=1).max()
     assert err <= tol(device, 1e-9, 1e-5) * diagonal(V), err
+
 
 def miss_of_small_group(V, F, device, base_size):
     """A 12-vertex tip group turned, next to a base group of `base_size` vertices held still,

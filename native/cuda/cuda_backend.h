@@ -140,7 +140,6 @@ class CudaBackend final : public Backend {
   int n_ = 0;      // real nodes: the unknowns
   int n_all_ = 0;  // real + stencil shell nodes
   std::vector<int> nbr_host_;  // 6 * n_: the neighbour slots (system.h)
-  std::vector<int> nb_agg_host_;  // 6 * n_: their aggregates (uploaded from here)
   cuda::CudaOptions opt_;
   int inner_ = 8;      // inner solver iterations per flip-flop (opt_.inner, or automatic)
   int coop_max_ = -1;  // most co-resident blocks of the fused kernel (-1: not asked yet)
@@ -167,10 +166,10 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<int> comp_, m_off_, m_col_, e_off_, e_group_, mc_nodes_, mc_chunk_off_, mc_comp_off_;
   cuda::DeviceBuffer<float> motions_;
   cuda::PinnedBuffer<double> h_moments_;
-  cuda::DeviceBuffer<int> agg_, nb_agg_, nbr_, rem_off_, rem_col_;
-  cuda::DeviceBuffer<float> a_diag_, a_nb_, rem_val_;
+  cuda::DeviceBuffer<int> agg_, nbr_, rem_off_, rem_col_, ap_col_, ap_off_, ap_rcol_;
+  cuda::DeviceBuffer<float> a_diag_, a_nb_, rem_val_, ap_val_, ap_rval_;
   cuda::DeviceBuffer<float> ainv_;
-  cuda::DeviceBuffer<float4> rc_, zc_, rc2_, zc2_;
+  cuda::DeviceBuffer<float4> rc_, zc_, rc2_, zc2_, sm_;
   cuda::DeviceBuffer<int> agg2_, c_off_, c_col_;
   cuda::DeviceBuffer<float> c_val_, c_minv_;
   cuda::DeviceBuffer<int> nbx_off_, nbx_, shell_off_, shell_ids_, a_off_, a_col_, iter_;

@@ -125,7 +125,7 @@ void CudaBackend::set_handles(const HandleSystem& hs) {
   sys_.nc2 = 0;
   cuda::Multigrid mg;  // host arrays: live until the stream is synchronised below
   if (opt_.solver == cuda::Solver::Multigrid) {
-    mg = cuda::build_multigrid(lat_, A, lam_max_, opt_.mg_coarse_max, opt_.mg_levels);
+    mg = cuda::build_multigrid(lat_, A, lam_max_, opt_.mg_coarse_max, opt_.mg_levels, cuda::kApSlots);
     upload_multigrid(mg);
   }
   LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));
@@ -167,11 +167,13 @@ void CudaBackend::upload_multigrid(const cuda::Multigrid& mg) {
   // and the CPU: 0.07%; docs/cuda.md, "Options").
   sys_.nc = mg.nc;
   sys_.agg = agg_.upload(mg.agg.data(), mg.agg.size(), stream_);
-  // The slots' aggregates beside the slots: the coarse correction's gather (mg_c_node) then reads
-  // zc two loads deep (slot, then value) instead of three (slot, aggregate, value).
-  nb_agg_host_.resize(nbr_host_.size());
-  for (size_t k = 0; k < nbr_host_.size(); ++k) nb_agg_host_[k] = mg.agg[size_t(nbr_host_[k])];
-  sys_.nb_agg = nb_agg_.upload(nb_agg_host_.data(), nb_agg_host_.size(), stream_);
+  // A P: the coarse correction's gather (mg_c_node) reads zc through it, two loads deep.
+  sys_.ap_col = ap_col_.upload(mg.ap.col.data(), mg.ap.col.size(), stream_);
+  sys_.ap_val = ap_val_.upload(mg.ap.val.data(), mg.ap.val.size(), stream_);
+  sys_.ap_off = ap_off_.upload(mg.ap.rem_off.data(), mg.ap.rem_off.size(), stream_);
+  sys_.ap_rcol = ap_rcol_.upload(mg.ap.rem_col.data(), mg.ap.rem_col.size(), stream_);
+  sys_.ap_rval = ap_rval_.upload(mg.ap.rem_val.data(), mg.ap.rem_val.size(), stream_);
+  sys_.sm = sm_.reserve(size_t(n_));
   sys_.rc = rc_.reserve(size_t(inner_) * mg.nc);
   sys_.zc = zc_.reserve(size_t(mg.nc));
   sys_.z = sys_.x_tmp;

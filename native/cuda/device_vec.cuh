@@ -19,7 +19,7 @@ __device__ __forceinline__ float4 operator+(float4 a, float4 b) {
 }
 // *dst += v (x, y, z; w is 0 in both): one vector atomic on compute capability 9.x, three before.
 __device__ __forceinline__ void atomic_add(float4* dst, float4 v) {
-#if __CUDA_ARCH__ >= 900
+#if __CUDA_ARCH__ >= 900 && CUDART_VERSION >= 12010  // float4 atomicAdd: CUDA 12.1, 9.x
   atomicAdd(dst, v);
 #else
   atomicAdd(&dst->x, v.x);
@@ -103,24 +103,22 @@ __device__ __forceinline__ float4 spmv_row(const System& s, int i, F get) {
   return acc;
 }
 
-// The same row with get(j, a) also given j's coarse aggregate a: the slots' aggregates are read
-// beside the slots (s.nb_agg), so a gather from a coarse vector is two loads deep, not three (the
-// remainder's entries read theirs from s.agg).
+// ((A P) v)_i with v_a = get(a) for a coarse vector v: kApSlots slots (all loads in flight at
+// once, so the gather is two loads deep) + the remainder (handle nodes, split cells), in batches.
 template <class F>
-__device__ __forceinline__ float4 spmv_row_agg(const System& s, int i, F get) {
-  int js[6], gs[6];
-  float as[6];
+__device__ __forceinline__ float4 prolonged_row(const System& s, int i, F get) {
+  int as[kApSlots];
+  float vs[kApSlots];
 #pragma unroll
-  for (int d = 0; d < 6; ++d) {
-    js[d] = __ldg(s.nbr + d * s.n + i);
-    gs[d] = __ldg(s.nb_agg + d * s.n + i);
-    as[d] = __ldg(s.a_nb + d * s.n + i);
+  for (int d = 0; d < kApSlots; ++d) {
+    as[d] = __ldg(s.ap_col + d * s.n + i);
+    vs[d] = __ldg(s.ap_val + d * s.n + i);
   }
-  float4 acc = __ldg(s.a_diag + i) * get(i, __ldg(s.agg + i));
+  const int q0 = __ldg(s.ap_off + i), q1 = __ldg(s.ap_off + i + 1);
+  float4 acc = vs[0] * get(as[0]);
 #pragma unroll
-  for (int d = 0; d < 6; ++d) acc = acc + as[d] * get(js[d], gs[d]);
-  const int q0 = __ldg(s.rem_off + i), q1 = __ldg(s.rem_off + i + 1);
-  for_row(q0, q1, i, s.rem_col, s.rem_val, [&](float v, int j) { acc = acc + v * get(j, __ldg(s.agg + j)); });
+  for (int d = 1; d < kApSlots; ++d) acc = acc + vs[d] * get(as[d]);
+  for_row(q0, q1, as[0], s.ap_rcol, s.ap_rval, [&](float v, int a) { acc = acc + v * get(a); });
   return acc;
 }
 

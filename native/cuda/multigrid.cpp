@@ -6,6 +6,7 @@
 #include <Eigen/SparseCore>
 #include <algorithm>
 #include <cstdint>
+#include <utility>
 
 #include "parallel.h"
 
@@ -78,8 +79,41 @@ std::vector<float> dense_inverse(const Eigen::MatrixXd& A) {
   return out;
 }
 
+ProlongedRows prolonged_rows(const SparseRows& A, const std::vector<int>& agg, int slots) {
+  const int n = int(A.rows());
+  ProlongedRows ap;
+  ap.col.assign(size_t(slots) * n, 0);
+  ap.val.assign(size_t(slots) * n, 0.f);
+  ap.rem_off.assign(size_t(n) + 1, 0);
+  std::vector<std::pair<int, double>> row;  // (aggregate, sum), own aggregate first
+  for (int i = 0; i < n; ++i) {
+    const int own = agg[size_t(i)];
+    row.assign(1, {own, 0.0});
+    for (SparseRows::InnerIterator it(A, i); it; ++it) {
+      const int a = agg[size_t(it.col())];
+      auto e = std::find_if(row.begin(), row.end(), [&](const auto& r) { return r.first == a; });
+      if (e == row.end()) {
+        row.emplace_back(a, 0.0);
+        e = row.end() - 1;
+      }
+      e->second += it.value();
+    }
+    for (int d = 0; d < slots; ++d) {
+      const bool in = d < int(row.size());
+      ap.col[size_t(d) * n + i] = in ? row[size_t(d)].first : own;
+      ap.val[size_t(d) * n + i] = in ? float(row[size_t(d)].second) : 0.f;
+    }
+    for (size_t e = size_t(slots); e < row.size(); ++e) {
+      ap.rem_col.push_back(row[e].first);
+      ap.rem_val.push_back(float(row[e].second));
+    }
+    ap.rem_off[size_t(i) + 1] = int(ap.rem_col.size());
+  }
+  return ap;
+}
+
 Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double lam_max, int mg_coarse_max,
-                          int mg_levels) {
+                          int mg_levels, int ap_slots) {
   const int n = int(A.rows());  // the real nodes (the stencil shell is not in the system)
   Multigrid mg;
   int nc = aggregate(lattice, n, 1, mg.agg);
@@ -93,6 +127,7 @@ Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double la
   }
   mg.nc = nc;
   mg.omega = float(4.0 / (3.0 * lam_max));
+  mg.ap = prolonged_rows(A, mg.agg, ap_slots);
   // Ac = P^T A P (sparse, double)
   SparseRows Ac(nc, nc);
   {

@@ -35,6 +35,22 @@ int aggregate(const Lattice& lattice, int n, int shift, std::vector<int>& agg);
 // Throws DeviceError when the matrix is not positive definite.
 std::vector<float> dense_inverse(const Eigen::MatrixXd& A);
 
+// Slots of a row of A P stored beside each other per fine node (system.h, kApSlots); the rest of
+// the row is a CSR remainder.
+struct ProlongedRows {
+  std::vector<int> col;      // kApSlots * n, slot-major: level-1 node of each slot (padding: own)
+  std::vector<float> val;    // the same: (A P)_ia (padding: 0)
+  std::vector<int> rem_off;  // n + 1
+  std::vector<int> rem_col;  // level-1 nodes of the entries beyond the slots
+  std::vector<float> rem_val;
+};
+
+// The rows of A P (P: fine node i -> its level-1 node agg[i]): (A P)_ia = sum of A_ij over the j
+// with agg[j] = a, summed in double; each row's own aggregate first (slot 0), the others in order
+// of first appearance. Away from handles and split cells a row has at most 4 (its own block and
+// one per axis); a handle node's, up to 8 with trilinear binding.
+ProlongedRows prolonged_rows(const SparseRows& A, const std::vector<int>& agg, int slots);
+
 struct Multigrid {
   bool three_levels = false;
   int shift = 1;            // level 1 = fine nodes grouped by coords >> shift
@@ -42,6 +58,7 @@ struct Multigrid {
   std::vector<int> agg;     // #N: level-1 id of each fine node
   float omega = 0.6f;       // fine smoothing weight
   std::vector<float> ainv;  // dense inverse of the coarsest level (nc or nc2 squared), row-major
+  ProlongedRows ap;         // A P, for the coarse correction's gather (solvers.cu, mg_c_node)
   // Three levels only:
   int nc2 = 0;                       // level-2 nodes
   std::vector<int> agg2;             // nc: level-2 id of each level-1 node
@@ -52,8 +69,9 @@ struct Multigrid {
 
 // The preconditioner of A (the fine system, #N rows) with lam_max = jacobi_lambda_max(A, ...).
 // mg_levels: 0 automatic, 2 or 3.
+// ap_slots: the slots of ProlongedRows.
 Multigrid build_multigrid(const Lattice& lattice, const SparseRows& A, double lam_max, int mg_coarse_max,
-                          int mg_levels);
+                          int mg_levels, int ap_slots);
 
 }  // namespace cuda
 }  // namespace larap

@@ -38,7 +38,8 @@ __device__ __forceinline__ float4 mg_beta(const System& s, int k) {
 
 // A_k: x += alpha_{k-1} p_{k-1}, r_k = r_{k-1} - alpha_{k-1} q (k > 0; k = 0: the previous
 // flip-flop's pending final update, if any); then the pre-smoothed residual
-// r1 = r_k - A (omega D^-1 r_k) restricted into rc[k] (atomics). final: update only.
+// r1 = r_k - sm, sm = A (omega D^-1 r_k), restricted into rc[k] (atomics), sm kept for C.
+// final: update only.
 __device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool final, float4 al,
                                           const Pending& pd = {}) {
   const float4* rin = s.r[(k + 1) & 1];  // r_{k-1} (k > 0)
@@ -57,7 +58,9 @@ __device__ __forceinline__ void mg_a_node(const System& s, int i, int k, bool fi
   const float* minv = s.minv;
   const float4 ar = k > 0 ? spmv_row(s, i, [&](int j) { return __ldg(minv + j) * (rk[j] - cmul(al, qv[j])); })
                           : spmv_row(s, i, [&](int j) { return __ldg(minv + j) * rk[j]; });
-  const float4 r1 = rn - s.omega * ar;
+  const float4 sm = s.omega * ar;
+  s.sm[i] = sm;
+  const float4 r1 = rn - sm;
   float4* dst = s.rc + int64_t(k) * s.nc + s.agg[i];
   atomic_add(dst, r1);
 }
@@ -146,16 +149,17 @@ __global__ void __launch_bounds__(kBlock) mg_b1_kernel(System s, int k) {
   if (c < s.nc) mg_b1_node(s, c, k);
 }
 
-// C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); adds (r, z) into v.
+// C_k: z2 = omega D^-1 r + P zc; z = z2 + omega D^-1 (r - A z2); adds (r, z) into v. A z2 is
+// sm + (A P) zc: sm = A omega D^-1 r is the A phase's pre-smoothing product, so the only gather
+// left is the coarse vector's through the rows of A P (two loads deep; at most 4 entries on a
+// node away from handles and split cells, where A's row has 7).
 __device__ __forceinline__ void mg_c_node(const System& s, int i, int k, double (&v)[3]) {
-  const float4* r = s.r[k & 1];
-  const float4 ri = r[i];
-  const float om = s.omega;
-  const float* minv = s.minv;
+  const float4 ri = s.r[k & 1][i];
   const float4* zc = s.zc;
-  const float4 az = spmv_row_agg(s, i, [&](int j, int a) { return (om * __ldg(minv + j)) * r[j] + zc[a]; });
-  const float4 z2i = (s.omega * s.minv[i]) * ri + s.zc[s.agg[i]];
-  const float4 zi = z2i + (s.omega * s.minv[i]) * (ri - az);
+  const float4 az = s.sm[i] + prolonged_row(s, i, [&](int a) { return zc[a]; });
+  const float om = s.omega * s.minv[i];
+  const float4 z2i = om * ri + zc[s.agg[i]];
+  const float4 zi = z2i + om * (ri - az);
   s.z[i] = zi;
   v[0] += ri.x * zi.x;
   v[1] += ri.y * zi.y;

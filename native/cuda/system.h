@@ -17,6 +17,10 @@
 namespace larap {
 namespace cuda {
 
+// Slots of a row of A P stored beside each other per fine node (multigrid.h, ProlongedRows): a
+// node away from handles and split cells has at most 4 coarse neighbours.
+constexpr int kApSlots = 4;
+
 struct System {
   // Nodes: the real nodes [0, n) are the unknowns; the stencil shell [n, n_all) follows them
   // (Lattice::fill_shell, here launch_fill_shell) and has no edges, rows or rotations. Only x and
@@ -92,7 +96,14 @@ struct System {
   // inverse of the Galerkin coarse operator P^T A P, damped Jacobi smoothing (weight omega).
   int nc = 0;                          // coarse nodes
   const int* agg = nullptr;            // n, coarse id of each fine node
-  const int* nb_agg = nullptr;         // 6 n, slot-major like nbr: agg of each slot's neighbour
+  // A P (the coarse correction's gather): kApSlots slots per node, slot-major like nbr (padding:
+  // own aggregate, value 0), and a CSR remainder.
+  const int* ap_col = nullptr;
+  const float* ap_val = nullptr;
+  const int* ap_off = nullptr;
+  const int* ap_rcol = nullptr;
+  const float* ap_rval = nullptr;
+  float4* sm = nullptr;                // n: omega A D^-1 r_k, the pre-smoothing's product (A phase)
   const float* ainv = nullptr;         // nc * nc, row-major
   float4* rc = nullptr;                // inner * nc: restricted residual per iteration
   float4* zc = nullptr;                // nc

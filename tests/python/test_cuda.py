@@ -490,12 +490,14 @@ def test_three_level_mg_agrees_with_cpu(fused, coarse, inner, monkeypatch):
 
 @need_cuda
 def test_mg_preconditioner_keeps_the_flip_flops_of_the_exact_global_step(monkeypatch):
-    """The multigrid cycle is a good preconditioner: with two inner steps the device reaches the
-    converged energy (within 1e-4) in at most 4 flip-flops more than the CPU's exact global step,
-    and with one or two steps, two or three levels, it ends within 1e-6 of it. Measured on an H200
-    (2026-11-24): CPU 32 flip-flops, two steps 30-31, end 3e-9 to 1.5e-7; a cycle whose
-    post-smoothing read an unweighted pre-smoothing product (omega left out) took 33 and 41-42 and
-    ended 6e-5 to 7.5e-5 above with one step."""
+    """The multigrid cycle is a good preconditioner: the device reaches the converged energy
+    (within 1e-4) in at most 4 flip-flops more than the CPU's exact global step with two inner
+    steps and at most 2.5 times its flip-flops with one, and ends within 1e-6 of it after 150, on
+    two and three levels. Measured on an H200 (2026-11-24, two repeats each; no other GPU): CPU 32
+    flip-flops; two steps 30-31, one step 40 (two levels) and 57-58 (three); at the end 3e-9 to
+    1.3e-8 above with two steps, up to 1.5e-7 with one. A cycle whose post-smoothing read an
+    unweighted pre-smoothing product (omega left out) took 33 and 41-42 flip-flops with two steps,
+    131-138 with one, and ended 6.3e-5 to 7.6e-5 above with one."""
     V, F, h, nl = tube_model()
     T = bend_targets(V, h, nl)
     ref = larap.Deformer(V, F, cells=1500, device="cpu")
@@ -517,8 +519,8 @@ def test_mg_preconditioner_keeps_the_flip_flops_of_the_exact_global_step(monkeyp
         d.solve(T, iterations=150)
         E = np.array(d.stats["energy"])
         assert E[-1] <= E_star * (1 + 1e-6), (levels, inner, E[-1] / E_star - 1)
-        if inner == "2":
-            assert flip_flops_to(E) <= cpu + 4, (levels, inner, flip_flops_to(E), cpu)
+        bound = cpu + 4 if inner == "2" else 2.5 * cpu
+        assert flip_flops_to(E) <= bound, (levels, inner, flip_flops_to(E), cpu)
 
 
 @need_cuda

@@ -48,8 +48,8 @@ void check_memory(const Eigen::Vector3i& dims, double h, int64_t max_bytes) {
 // The cells [c0, c1] along axis k that the interval [lo, hi] (grid units) touches, a ten-millionth
 // of a cell to spare each side, clamped to the grid.
 static void cell_span(const Grid& g, double lo, double hi, int k, int& c0, int& c1) {
-  c0 = std::max(0, int(std::floor(lo - 1e-7)));
-  c1 = std::min(g.dims[k] - 1, int(std::floor(hi + 1e-7)));
+  c0 = std::max(0, geometry::floor_int(lo - 1e-7));
+  c1 = std::min(g.dims[k] - 1, geometry::floor_int(hi + 1e-7));
 }
 
 // Sets `bit` on the cells of the block [c0, c1] whose box `overlaps(centre)` says a primitive
@@ -150,49 +150,85 @@ static void mark_outside(Grid& g) {
 
 // Ray parity votes: for each axis, rays through the cell-centre columns; a cell collects one vote
 // per ray direction (+ and -) that crosses the surface an odd number of times before reaching it.
+// The crossings are gathered from chunks of triangles in parallel (each triangle's corners in grid
+// units once, for all three axes), then bucketed by column; a column's crossings are sorted before
+// they are used, so the votes do not depend on the order they were found in.
 static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
                                   const std::vector<Eigen::Vector3i>& tris) {
   std::vector<uint8_t> votes(static_cast<size_t>(g.size()), 0);
-  // Columns: the rays of geometry.h (off the cell centres by a millionth of a cell).
+  // Columns: the rays of geometry.h (off the cell centres by a millionth of a cell); those of axis
+  // a, (jb, jc) with b = a + 1, c = a + 2 (mod 3), are numbered from col0[a].
+  int64_t col0[4] = {0, 0, 0, 0};
+  for (int a = 0; a < 3; ++a) col0[a + 1] = col0[a] + int64_t(g.dims[(a + 1) % 3]) * g.dims[(a + 2) % 3];
+  struct Crossing {
+    int64_t col;
+    double at;
+  };
+  constexpr int64_t kChunk = 16384;
+  const int64_t nt = int64_t(tris.size()), nchunks = (nt + kChunk - 1) / kChunk;
+  std::vector<std::vector<Crossing>> found(static_cast<size_t>(nchunks));
+  parallel_for(
+      nchunks,
+      [&](int64_t chunk) {
+        std::vector<Crossing>& out = found[size_t(chunk)];
+        const int64_t end = std::min(nt, (chunk + 1) * kChunk);
+        for (int64_t t = chunk * kChunk; t < end; ++t) {
+          Eigen::Vector3d p[3];
+          for (int k = 0; k < 3; ++k) p[k] = (V.row(tris[t][k]).transpose() - g.origin) / g.h;
+          for (int a = 0; a < 3; ++a) {
+            const int nb = g.dims[(a + 1) % 3], nc = g.dims[(a + 2) % 3];
+            int jb0, jb1, jc0, jc1;
+            if (!geometry::rays_in_box(p, a, nb, nc, jb0, jb1, jc0, jc1)) continue;
+            if (geometry::seen_area(p, a) == 0.0) continue;  // parallel to the ray
+            for (int jc = jc0; jc <= jc1; ++jc)
+              for (int jb = jb0; jb <= jb1; ++jb) {
+                double ta;
+                if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, ta))
+                  out.push_back({col0[a] + int64_t(jc) * nb + jb, ta});
+              }
+          }
+        }
+      },
+      1);
+  // Bucket by column (CSR).
+  std::vector<int64_t> start(static_cast<size_t>(col0[3] + 1), 0);
+  for (const auto& part : found)
+    for (const Crossing& x : part) ++start[size_t(x.col) + 1];
+  for (int64_t col = 0; col < col0[3]; ++col) start[size_t(col) + 1] += start[size_t(col)];
+  std::vector<double> at(static_cast<size_t>(start.back()));
+  {
+    std::vector<int64_t> fill(start.begin(), start.end() - 1);
+    for (const auto& part : found)
+      for (const Crossing& x : part) at[size_t(fill[size_t(x.col)]++)] = x.at;
+  }
+  std::vector<std::vector<Crossing>>().swap(found);
   for (int a = 0; a < 3; ++a) {
     const int b = (a + 1) % 3, c = (a + 2) % 3;
     const int nb = g.dims[b], nc = g.dims[c], na = g.dims[a];
-    std::vector<std::vector<double>> cols(static_cast<size_t>(nb) * nc);
-    for (const auto& t : tris) {
-      Eigen::Vector3d p[3];
-      for (int k = 0; k < 3; ++k) p[k] = (V.row(t[k]).transpose() - g.origin) / g.h;
-      int jb0, jb1, jc0, jc1;
-      if (geometry::seen_area(p, a) == 0.0) continue;  // parallel to the ray
-      if (!geometry::rays_in_box(p, a, nb, nc, jb0, jb1, jc0, jc1)) continue;
-      for (int jc = jc0; jc <= jc1; ++jc)
-        for (int jb = jb0; jb <= jb1; ++jb) {
-          double ta;
-          if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, ta))
-            cols[size_t(jc) * nb + jb].push_back(ta);
-        }
-    }
-    parallel_for(int64_t(cols.size()), [&](int64_t col) {
-      auto& xs = cols[col];
-      if (xs.empty()) return;
-      std::sort(xs.begin(), xs.end());
-      // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
-      xs.erase(std::unique(xs.begin(), xs.end(),
-                           [](double u, double v) { return std::abs(u - v) < 1e-9; }),
-               xs.end());
-      const int jb = int(col % nb), jc = int(col / nb);
-      const int total = int(xs.size());
-      int below = 0;
-      for (int k = 0; k < na; ++k) {
-        const double centre = k + 0.5;
-        while (below < total && xs[below] < centre) ++below;
-        Eigen::Vector3i cell;
-        cell[a] = k;
-        cell[b] = jb;
-        cell[c] = jc;
-        const int64_t id = g.index(cell.x(), cell.y(), cell.z());
-        votes[id] += uint8_t((below & 1) + ((total - below) & 1));
-      }
-    }, 64);
+    parallel_for(
+        int64_t(nb) * nc,
+        [&](int64_t col) {
+          double* xs = at.data() + start[size_t(col0[a] + col)];
+          double* xs_end = at.data() + start[size_t(col0[a] + col) + 1];
+          if (xs == xs_end) return;
+          std::sort(xs, xs_end);
+          // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
+          xs_end = std::unique(xs, xs_end, [](double u, double v) { return std::abs(u - v) < 1e-9; });
+          const int jb = int(col % nb), jc = int(col / nb);
+          const int total = int(xs_end - xs);
+          int below = 0;
+          for (int k = 0; k < na; ++k) {
+            const double centre = k + 0.5;
+            while (below < total && xs[below] < centre) ++below;
+            Eigen::Vector3i cell;
+            cell[a] = k;
+            cell[b] = jb;
+            cell[c] = jc;
+            const int64_t id = g.index(cell.x(), cell.y(), cell.z());
+            votes[id] += uint8_t((below & 1) + ((total - below) & 1));
+          }
+        },
+        64);
   }
   return votes;
 }

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "cell_pieces.h"
+#include "geometry.h"
 
 namespace larap {
 
@@ -32,12 +33,11 @@ struct Grid {
     return x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z);
   }
   int64_t size() const { return int64_t(dims.x()) * dims.y() * dims.z(); }
+  // The cell of a point of the mesh (inside the grid: no overflow of floor_int).
   Eigen::Vector3i cell_of(const Eigen::Vector3d& p) const {
     Eigen::Vector3i c;
-    for (int a = 0; a < 3; ++a) {
-      const double f = std::floor((p[a] - origin[a]) / h);
-      c[a] = static_cast<int>(std::clamp(f, 0.0, double(dims[a] - 1)));
-    }
+    for (int a = 0; a < 3; ++a)
+      c[a] = std::clamp(geometry::floor_int((p[a] - origin[a]) / h), 0, dims[a] - 1);
     return c;
   }
 };

@@ -2,21 +2,23 @@
 #include <larap/mesh.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <string>
 
+#include "parallel.h"
+
 namespace larap {
 
-void validate_mesh(const PolygonMesh& mesh) {
+// Throws on the first bad vertex, else the first bad face (in index order), serially: called only
+// once the parallel checks below have found one.
+static void report_first_problem(const PolygonMesh& mesh) {
   const int64_t n = mesh.num_vertices();
-  if (n == 0) throw InvalidInput("the mesh has no vertices");
   for (int64_t i = 0; i < n; ++i)
     for (int c = 0; c < 3; ++c)
       if (!std::isfinite(mesh.vertices(i, c)))
         throw InvalidInput("vertices[" + std::to_string(i) + "] has a non-finite coordinate (" +
                            number_text(mesh.vertices(i, c)) + ")");
-  if (mesh.face_offsets.empty() || mesh.face_offsets.front() != 0)
-    throw InvalidInput("face offsets must start at 0");
   const int64_t m = mesh.num_faces();
   for (int64_t f = 0; f < m; ++f) {
     const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
@@ -32,27 +34,83 @@ void validate_mesh(const PolygonMesh& mesh) {
   }
 }
 
-std::vector<Eigen::Vector3i> triangulate(const PolygonMesh& mesh) {
-  std::vector<Eigen::Vector3i> tris;
-  tris.reserve(static_cast<size_t>(mesh.face_indices.size()));
+void validate_mesh(const PolygonMesh& mesh) {
+  const int64_t n = mesh.num_vertices();
+  if (n == 0) throw InvalidInput("the mesh has no vertices");
+  std::atomic<bool> bad{false};
+  parallel_for(
+      n,
+      [&](int64_t i) {
+        if (!(std::isfinite(mesh.vertices(i, 0)) && std::isfinite(mesh.vertices(i, 1)) &&
+              std::isfinite(mesh.vertices(i, 2))))
+          bad.store(true, std::memory_order_relaxed);
+      },
+      65536);
+  if (bad.load()) report_first_problem(mesh);
+  if (mesh.face_offsets.empty() || mesh.face_offsets.front() != 0)
+    throw InvalidInput("face offsets must start at 0");
   const int64_t m = mesh.num_faces();
-  for (int64_t f = 0; f < m; ++f) {
+  const int64_t ni = static_cast<int64_t>(mesh.face_indices.size());
+  parallel_for(
+      m,
+      [&](int64_t f) {
+        const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
+        if (b < 0 || e <= b || e > ni) {  // (b < 0 only after a bad face: the report names that one)
+          bad.store(true, std::memory_order_relaxed);
+          return;
+        }
+        for (int64_t k = b; k < e; ++k)
+          if (mesh.face_indices[k] < 0 || mesh.face_indices[k] >= n)
+            bad.store(true, std::memory_order_relaxed);
+      },
+      65536);
+  if (bad.load()) report_first_problem(mesh);
+}
+
+// Faces in chunks, in parallel: each chunk's output counted, then written at its offset, so the
+// order is the faces' (as a serial loop would give).
+template <class T, class Emit>
+static std::vector<T> per_face(const PolygonMesh& mesh, const Emit& emit) {
+  constexpr int64_t kChunk = 65536;
+  const int64_t m = mesh.num_faces(), nchunks = (m + kChunk - 1) / kChunk;
+  std::vector<int64_t> start(static_cast<size_t>(nchunks) + 1, 0);
+  parallel_for(
+      nchunks,
+      [&](int64_t c) {
+        int64_t count = 0;
+        for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f)
+          emit(f, [&](const T&) { ++count; });
+        start[size_t(c) + 1] = count;
+      },
+      1);
+  for (int64_t c = 0; c < nchunks; ++c) start[size_t(c) + 1] += start[size_t(c)];
+  std::vector<T> out(static_cast<size_t>(start.back()));
+  parallel_for(
+      nchunks,
+      [&](int64_t c) {
+        int64_t at = start[size_t(c)];
+        for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f)
+          emit(f, [&](const T& x) { out[size_t(at++)] = x; });
+      },
+      1);
+  return out;
+}
+
+std::vector<Eigen::Vector3i> triangulate(const PolygonMesh& mesh) {
+  return per_face<Eigen::Vector3i>(mesh, [&](int64_t f, const auto& put) {
     const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
     for (int64_t k = b + 1; k + 1 < e; ++k) {
       const int a = static_cast<int>(mesh.face_indices[b]);
       const int u = static_cast<int>(mesh.face_indices[k]);
       const int w = static_cast<int>(mesh.face_indices[k + 1]);
       if (a == u || u == w || a == w) continue;
-      tris.emplace_back(a, u, w);
+      put(Eigen::Vector3i(a, u, w));
     }
-  }
-  return tris;
+  });
 }
 
 std::vector<Eigen::Vector2i> segments(const PolygonMesh& mesh) {
-  std::vector<Eigen::Vector2i> segs;
-  const int64_t m = mesh.num_faces();
-  for (int64_t f = 0; f < m; ++f) {
+  return per_face<Eigen::Vector2i>(mesh, [&](int64_t f, const auto& put) {
     const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
     const int64_t a = mesh.face_indices[b];
     int64_t other = -1;
@@ -60,12 +118,13 @@ std::vector<Eigen::Vector2i> segments(const PolygonMesh& mesh) {
     for (int64_t k = b + 1; k < e && two; ++k) {
       const int64_t v = mesh.face_indices[k];
       if (v == a || v == other) continue;
-      if (other < 0) other = v;
-      else two = false;  // a third distinct vertex: a polygon (triangulate's), not an edge
+      if (other < 0)
+        other = v;
+      else
+        two = false;  // a third distinct vertex: a polygon (triangulate's), not an edge
     }
-    if (two && other >= 0) segs.emplace_back(int(std::min(a, other)), int(std::max(a, other)));
-  }
-  return segs;
+    if (two && other >= 0) put(Eigen::Vector2i(int(std::min(a, other)), int(std::max(a, other))));
+  });
 }
 
 }  // namespace larap

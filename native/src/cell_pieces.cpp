@@ -129,26 +129,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     }
   const int64_t nb = int64_t(cand_surf.size());
   if (nb == 0) return out;
-  std::vector<int32_t> cand_offsets, cand_tris;  // triangles of each candidate
-  triangles_of(sp, tris, cand_surf, cand_offsets, cand_tris);
-  // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one
-  // with several tells their surfaces apart (part_pieces.h). part_of[b]: the cell's one part,
-  // kSeveral, or kNoPart (no triangle: no surface voxel).
-  constexpr int32_t kSeveral = -1, kNoPart = -2;
-  std::vector<int32_t> part_of(static_cast<size_t>(nb), kNoPart);
-  bool by_part = false;  // some cell holds several parts, or two cells different ones
-  int32_t seen = kNoPart;
-  for (int64_t b = 0; b < nb; ++b) {
-    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
-      const int32_t p = vertex_part[tris[cand_tris[q]][0]];
-      part_of[b] = part_of[b] == kNoPart || part_of[b] == p ? p : kSeveral;
-    }
-    if (part_of[b] == kSeveral) by_part = true;
-    else if (part_of[b] != kNoPart) {
-      if (seen != kNoPart && seen != part_of[b]) by_part = true;
-      seen = part_of[b];
-    }
-  }
   const int64_t k3 = int64_t(k) * k * k;
   // Rows: the voxels' inside test (voxel_inside.h) casts rays the length of the grid along the
   // rows of cells through each analysed cell, one row per axis; every cell of a row shares its
@@ -197,6 +177,33 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   }, 4096);
   std::vector<int32_t> rs_offsets, rs_tris;
   triangles_of(sp, tris, row_surf, rs_offsets, rs_tris);
+  // The analysed cells are among the rows' surface cells: their triangles are copied from there.
+  std::vector<int32_t> cand_offsets{0}, cand_tris;  // triangles of each candidate
+  for (int64_t b = 0; b < nb; ++b) {
+    const size_t i =
+        size_t(std::lower_bound(row_surf.begin(), row_surf.end(), cand_surf[size_t(b)]) - row_surf.begin());
+    cand_tris.insert(cand_tris.end(), rs_tris.begin() + rs_offsets[i], rs_tris.begin() + rs_offsets[i + 1]);
+    cand_offsets.push_back(int32_t(cand_tris.size()));
+  }
+  // Parts: a cell whose triangles belong to one part keeps the 6-connected flood fill below; one
+  // with several tells their surfaces apart (part_pieces.h). part_of[b]: the cell's one part,
+  // kSeveral, or kNoPart (no triangle: no surface voxel).
+  constexpr int32_t kSeveral = -1, kNoPart = -2;
+  std::vector<int32_t> part_of(static_cast<size_t>(nb), kNoPart);
+  bool by_part = false;  // some cell holds several parts, or two cells different ones
+  int32_t seen = kNoPart;
+  for (int64_t b = 0; b < nb; ++b) {
+    for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) {
+      const int32_t p = vertex_part[tris[cand_tris[q]][0]];
+      part_of[b] = part_of[b] == kNoPart || part_of[b] == p ? p : kSeveral;
+    }
+    if (part_of[b] == kSeveral)
+      by_part = true;
+    else if (part_of[b] != kNoPart) {
+      if (seen != kNoPart && seen != part_of[b]) by_part = true;
+      seen = part_of[b];
+    }
+  }
   const double hv = h / k;
   auto row_rays = [&](int a, int64_t row) {
     return RowRays(a, origin + h * g.coords(row).cast<double>(), hv, k);

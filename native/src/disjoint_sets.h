@@ -1,6 +1,7 @@
 // Disjoint sets (union-find with path halving) whose root is the smallest member: used to join
-// lattice nodes into shared points (lattice.cpp) and mesh vertices into parts
-// (mesh_parts.cpp).
+// lattice nodes into shared points (lattice.cpp) and mesh vertices into parts (mesh_parts.cpp).
+// ConcurrentSets is the same for several threads at once (mesh_parts.cpp, surface_patches.cpp):
+// a class's root does not depend on the order of the unions, so neither does the result.
 #pragma once
 #include <algorithm>
 #include <cstdint>
@@ -20,6 +21,42 @@ struct DisjointSets {
     a = find(a);
     b = find(b);
     if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+};
+
+// Union-find shared by the threads: a class's root is its smallest member (links go from the
+// larger root to the smaller, by compare-and-swap; path halving only points an element further up).
+struct ConcurrentSets {
+  std::vector<int32_t> parent;
+  explicit ConcurrentSets(int64_t n) : parent(size_t(n)) { std::iota(parent.begin(), parent.end(), 0); }
+  int32_t find(int32_t x) {
+    for (;;) {
+      const int32_t px = __atomic_load_n(&parent[x], __ATOMIC_RELAXED);
+      if (px == x) return x;
+      const int32_t gx = __atomic_load_n(&parent[px], __ATOMIC_RELAXED);
+      if (gx != px) __atomic_store_n(&parent[x], gx, __ATOMIC_RELAXED);
+      x = gx;
+    }
+  }
+  // The root, without path halving: for the pass that writes every vertex's root while other
+  // threads read (a halving store could put a non-root ancestor back after that write).
+  int32_t root_of(int32_t x) const {
+    for (;;) {
+      const int32_t px = __atomic_load_n(&parent[x], __ATOMIC_RELAXED);
+      if (px == x) return x;
+      x = px;
+    }
+  }
+  void unite(int32_t a, int32_t b) {
+    for (;;) {
+      a = find(a);
+      b = find(b);
+      if (a == b) return;
+      if (a < b) std::swap(a, b);
+      int32_t expected = a;
+      if (__atomic_compare_exchange_n(&parent[a], &expected, b, false, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED))
+        return;
+    }
   }
 };
 

@@ -5,6 +5,7 @@
 #include <unordered_map>
 
 #include "disjoint_sets.h"
+#include "parallel.h"
 
 namespace larap {
 namespace {
@@ -31,15 +32,21 @@ Position position(const RowMatrixX3d& V, int64_t v) {
 
 std::vector<int32_t> mesh_parts(const PolygonMesh& mesh) {
   const int64_t nv = mesh.num_vertices();
-  DisjointSets sets(nv);
-  for (int64_t f = 0; f < mesh.num_faces(); ++f)
-    for (int64_t k = mesh.face_offsets[f] + 1; k < mesh.face_offsets[f + 1]; ++k)
-      sets.unite(int32_t(mesh.face_indices[mesh.face_offsets[f]]), int32_t(mesh.face_indices[k]));
+  ConcurrentSets sets(nv);  // the faces in parallel; the roots do not depend on the order
+  parallel_for(
+      mesh.num_faces(),
+      [&](int64_t f) {
+        for (int64_t k = mesh.face_offsets[f] + 1; k < mesh.face_offsets[f + 1]; ++k)
+          sets.unite(int32_t(mesh.face_indices[mesh.face_offsets[f]]), int32_t(mesh.face_indices[k]));
+      },
+      8192);
   // Vertices at one position. Only positions of vertices outside the largest component are
   // hashed (a character's body is not, so a mesh of one part costs one pass); the largest
   // component's vertices are looked up.
   std::vector<int32_t> root(static_cast<size_t>(nv)), size(static_cast<size_t>(nv), 0);
-  for (int64_t v = 0; v < nv; ++v) ++size[root[v] = sets.find(int32_t(v))];
+  parallel_for(
+      nv, [&](int64_t v) { root[v] = sets.root_of(int32_t(v)); }, 8192);
+  for (int64_t v = 0; v < nv; ++v) ++size[root[v]];
   int32_t largest = 0;
   for (int64_t v = 0; v < nv; ++v)
     if (size[v] > size[largest]) largest = int32_t(v);
@@ -57,8 +64,10 @@ std::vector<int32_t> mesh_parts(const PolygonMesh& mesh) {
       if (it != first.end()) sets.unite(it->second, int32_t(v));
     }
   }
+  if (nv > 0 && size[largest] == nv) return root;
   std::vector<int32_t> part(static_cast<size_t>(nv));
-  for (int64_t v = 0; v < nv; ++v) part[v] = sets.find(int32_t(v));
+  parallel_for(
+      nv, [&](int64_t v) { part[v] = sets.root_of(int32_t(v)); }, 8192);
   return part;
 }
 

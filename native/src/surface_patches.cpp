@@ -9,6 +9,7 @@
 #include <string>
 
 #include "cell_pieces.h"
+#include "disjoint_sets.h"
 #include "geometry.h"
 #include "parallel.h"
 
@@ -17,44 +18,7 @@ namespace {
 
 constexpr uint32_t kNoCell = SurfacePatches::kNoCell;
 
-// int(std::floor(y)), by truncation where that is the same (y >= 0: every vertex inside the
-// padded grid), saving the long floor sequence of a baseline x86-64 build.
-inline int floor_int(double y) { return y >= 0.0 ? int(y) : int(std::floor(y)); }
-
-// Union-find over vertex ids shared by the threads: a class's root is its smallest member (links
-// go from the larger root to the smaller; path halving only points a vertex further up).
-struct ConcurrentSets {
-  std::vector<int32_t> parent;
-  explicit ConcurrentSets(int64_t n) : parent(size_t(n)) { std::iota(parent.begin(), parent.end(), 0); }
-  int32_t find(int32_t x) {
-    for (;;) {
-      const int32_t px = __atomic_load_n(&parent[x], __ATOMIC_RELAXED);
-      if (px == x) return x;
-      const int32_t gx = __atomic_load_n(&parent[px], __ATOMIC_RELAXED);
-      if (gx != px) __atomic_store_n(&parent[x], gx, __ATOMIC_RELAXED);
-      x = gx;
-    }
-  }
-  // The root, without path halving: for the pass that writes every vertex's root while other
-  // threads read (a halving store could put a non-root ancestor back after that write).
-  int32_t root_of(int32_t x) const {
-    for (;;) {
-      const int32_t px = __atomic_load_n(&parent[x], __ATOMIC_RELAXED);
-      if (px == x) return x;
-      x = px;
-    }
-  }
-  void unite(int32_t a, int32_t b) {
-    for (;;) {
-      a = find(a);
-      b = find(b);
-      if (a == b) return;
-      if (a < b) std::swap(a, b);
-      int32_t expected = a;
-      if (__atomic_compare_exchange_n(&parent[a], &expected, b, false, __ATOMIC_ACQ_REL, __ATOMIC_RELAXED)) return;
-    }
-  }
-};
+using geometry::floor_int;
 
 // Union-find over the few hundred vertex ids of one cell, in an open-addressed table that stays
 // in cache (one per worker thread, cleared after each cell).

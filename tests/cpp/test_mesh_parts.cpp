@@ -5,6 +5,7 @@
 #include <set>
 
 #include "mesh_parts.h"
+#include "parallel.h"
 #include "test_meshes.h"
 
 using namespace larap;
@@ -46,4 +47,25 @@ TEST(MeshParts, ALooseVertexAtABodysCornerJoinsIt) {
   EXPECT_EQ(mesh_parts(m)[8], 8);
   const PolygonMesh loose = gen::concat({gen::point({0, 0, 0}), gen::point({1, 0, 0})});
   EXPECT_EQ(count(mesh_parts(loose)), 2u);
+}
+
+TEST(MeshParts, SameWhateverTheThreadCount) {
+  // The faces are joined by several threads at once (a union-find whose roots are the smallest
+  // members, so the order does not matter): a soup of many small triangles (every part a class of
+  // many links), two tori and a loose point, with 1, 2 and 8 threads.
+  const PolygonMesh soup = unwelded(gen::torus(1.0, 0.35, 120, 60));
+  const PolygonMesh m = gen::concat(
+      {soup, gen::torus(3.0, 0.35, 200, 100), gen::torus(3.0, 0.2, 30, 10), gen::point({9, 9, 9})});
+  const int before = num_threads();
+  set_num_threads(1);
+  const std::vector<int32_t> one = mesh_parts(m);
+  EXPECT_EQ(count(one), 4u);  // the soup is one part through its shared positions
+  for (int64_t v = 0; v < int64_t(one.size()); ++v) ASSERT_LE(one[size_t(v)], v);  // named by the smallest
+  EXPECT_EQ(one[0], 0);
+  EXPECT_EQ(one[size_t(soup.num_vertices())], int32_t(soup.num_vertices()));
+  for (int n : {2, 8}) {
+    set_num_threads(n);
+    EXPECT_EQ(mesh_parts(m), one) << n << " threads";
+  }
+  set_num_threads(before);
 }

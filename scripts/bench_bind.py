@@ -6,7 +6,7 @@ thin box of large triangles, rows of loose boxes 0.05 apart, the character of la
 1M-vertex torus, and the public meshes of ../shared when present. Prints a table (seconds, and this tree's over the
 other's) and writes it as JSON with the machine.
 
-Run: /usr/bin/python3 scripts/bench_bind.py --other CHECKOUT [--rounds 2] [--out FILE]"""
+Run: /usr/bin/python3 scripts/bench_bind.py --other CHECKOUT [--rounds 2] [--all-meshes] [--out FILE]"""
 import argparse
 import json
 import os
@@ -34,6 +34,9 @@ elif name.startswith("boxes "):
     V, F = shapes.concat(*parts)
     kw = {"cell_size": 0.5}
 elif name == "character":
+    if not hasattr(shapes, "character"):  # a checkout older than it (bf2125a, before issue 9)
+        print(json.dumps({"missing": "larap.shapes.character"}))
+        sys.exit(0)
     V, F, _ = shapes.character()
 elif name == "torus":
     V, F = shapes.torus(1.0, 0.35, 1414, 707)
@@ -57,10 +60,15 @@ def main():
     p.add_argument("--other", required=True, help="the checkout to compare with, built (its python/ is used)")
     p.add_argument("--rounds", type=int, default=2, help="alternations of the two trees per model")
     p.add_argument("--out", default=os.path.join(ROOT, "build", "bench_bind.json"))
+    p.add_argument("--all-meshes", action="store_true",
+                   help="every public mesh of ../shared (default: suzanne, truck and woody)")
     a = p.parse_args()
     models = list(MODELS)
     if os.path.isdir(SHARED):
-        for name in ("suzanne.obj", "truck.obj", "woody.obj"):
+        names = ("suzanne.obj", "truck.obj", "woody.obj")
+        if a.all_meshes:
+            names = sorted(n for n in os.listdir(SHARED) if n.endswith((".obj", ".off", ".ply", ".stl")))
+        for name in names:
             path = os.path.join(SHARED, name)
             if os.path.exists(path):
                 models.append((path, name + ", default lattice"))
@@ -72,10 +80,12 @@ def main():
         for _ in range(a.rounds):
             other.append(run_child(a.other, CHILD, model))
             mine.append(run_child(ROOT, CHILD, model))
-        m, o = min(r["bind_s"] for r in mine), min(r["bind_s"] for r in other)
+        m = min(r["bind_s"] for r in mine)
+        o = None if "missing" in other[0] else min(r["bind_s"] for r in other)
         rows.append({"model": label, **mine[0], "bind_s": m, "other_bind_s": o})
+        other_s, ratio = ("(no " + other[0]["missing"] + ")", "") if o is None else (f"{o:.3f}", f"{m / o:.2f}")
         print(f"| {label} | {mine[0]['vertices']:,} | {mine[0]['cells']:,} | {mine[0]['nodes']:,} | "
-              f"{o:.3f} | {m:.3f} | {m / o:.2f} |", flush=True)
+              f"{other_s} | {m:.3f} | {ratio} |", flush=True)
     os.makedirs(os.path.dirname(a.out), exist_ok=True)
     with open(a.out, "w") as f:
         json.dump({"machine": machine_info.describe(), "other": os.path.abspath(a.other), "rows": rows}, f, indent=1)

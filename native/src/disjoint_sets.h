@@ -1,7 +1,9 @@
-// Disjoint sets (union-find with path halving) whose root is the smallest member: used to join
-// lattice nodes into shared points (lattice.cpp) and mesh vertices into parts (mesh_parts.cpp).
-// ConcurrentSets is the same for several threads at once (mesh_parts.cpp, surface_patches.cpp):
-// a class's root does not depend on the order of the unions, so neither does the result.
+// Disjoint sets (union-find with path halving) whose root is the smallest member: DisjointSets
+// joins lattice nodes into shared points (lattice.cpp) and voxels into a cell's pieces
+// (part_pieces.cpp); ConcurrentSets is the same for several threads at once, joining mesh vertices
+// into parts (mesh_parts.cpp) and into a cell's surface patches (surface_patches.cpp). A class's
+// root does not depend on the order of the unions, so neither does the result. Links go from a
+// larger root to a smaller one, so every element's parent is at most itself.
 #pragma once
 #include <algorithm>
 #include <cstdint>

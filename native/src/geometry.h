@@ -1,4 +1,5 @@
-// Small exact geometric predicates used by the lattice builder.
+// Small exact geometric predicates, and the floor that turns coordinates into cell indices, used by
+// the lattice builder.
 #pragma once
 #include <Eigen/Core>
 #include <Eigen/Geometry>

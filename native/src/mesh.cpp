@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <stdexcept>
 #include <string>
 
 #include "parallel.h"
@@ -32,38 +33,33 @@ static void report_first_problem(const PolygonMesh& mesh) {
                            ", out of range for " + std::to_string(n) + " vertices");
     }
   }
+  throw std::logic_error("validate_mesh: the parallel check found a problem that the serial one did not");
 }
 
 void validate_mesh(const PolygonMesh& mesh) {
   const int64_t n = mesh.num_vertices();
   if (n == 0) throw InvalidInput("the mesh has no vertices");
   std::atomic<bool> bad{false};
-  parallel_for(
-      n,
-      [&](int64_t i) {
-        if (!(std::isfinite(mesh.vertices(i, 0)) && std::isfinite(mesh.vertices(i, 1)) &&
-              std::isfinite(mesh.vertices(i, 2))))
-          bad.store(true, std::memory_order_relaxed);
-      },
-      65536);
+  const auto check_vertex = [&](int64_t i) {
+    const auto row = mesh.vertices.row(i);
+    if (!(std::isfinite(row(0)) && std::isfinite(row(1)) && std::isfinite(row(2))))
+      bad.store(true, std::memory_order_relaxed);
+  };
+  parallel_for(n, check_vertex, 65536);
   if (bad.load()) report_first_problem(mesh);
   if (mesh.face_offsets.empty() || mesh.face_offsets.front() != 0)
     throw InvalidInput("face offsets must start at 0");
-  const int64_t m = mesh.num_faces();
   const int64_t ni = static_cast<int64_t>(mesh.face_indices.size());
-  parallel_for(
-      m,
-      [&](int64_t f) {
-        const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
-        if (b < 0 || e <= b || e > ni) {  // (b < 0 only after a bad face: the report names that one)
-          bad.store(true, std::memory_order_relaxed);
-          return;
-        }
-        for (int64_t k = b; k < e; ++k)
-          if (mesh.face_indices[k] < 0 || mesh.face_indices[k] >= n)
-            bad.store(true, std::memory_order_relaxed);
-      },
-      65536);
+  const auto check_face = [&](int64_t f) {
+    const int64_t b = mesh.face_offsets[f], e = mesh.face_offsets[f + 1];
+    if (b < 0 || e <= b || e > ni) {  // (b < 0 only after a bad face: the report names that one)
+      bad.store(true, std::memory_order_relaxed);
+      return;
+    }
+    for (int64_t k = b; k < e; ++k)
+      if (mesh.face_indices[k] < 0 || mesh.face_indices[k] >= n) bad.store(true, std::memory_order_relaxed);
+  };
+  parallel_for(mesh.num_faces(), check_face, 65536);
   if (bad.load()) report_first_problem(mesh);
 }
 
@@ -74,25 +70,20 @@ static std::vector<T> per_face(const PolygonMesh& mesh, const Emit& emit) {
   constexpr int64_t kChunk = 65536;
   const int64_t m = mesh.num_faces(), nchunks = (m + kChunk - 1) / kChunk;
   std::vector<int64_t> start(static_cast<size_t>(nchunks) + 1, 0);
-  parallel_for(
-      nchunks,
-      [&](int64_t c) {
-        int64_t count = 0;
-        for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f)
-          emit(f, [&](const T&) { ++count; });
-        start[size_t(c) + 1] = count;
-      },
-      1);
+  const auto count = [&](int64_t c) {
+    int64_t n = 0;
+    for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f) emit(f, [&](const T&) { ++n; });
+    start[size_t(c) + 1] = n;
+  };
+  parallel_for(nchunks, count, 1);
   for (int64_t c = 0; c < nchunks; ++c) start[size_t(c) + 1] += start[size_t(c)];
   std::vector<T> out(static_cast<size_t>(start.back()));
-  parallel_for(
-      nchunks,
-      [&](int64_t c) {
-        int64_t at = start[size_t(c)];
-        for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f)
-          emit(f, [&](const T& x) { out[size_t(at++)] = x; });
-      },
-      1);
+  const auto fill = [&](int64_t c) {
+    int64_t at = start[size_t(c)];
+    for (int64_t f = c * kChunk; f < std::min(m, (c + 1) * kChunk); ++f)
+      emit(f, [&](const T& x) { out[size_t(at++)] = x; });
+  };
+  parallel_for(nchunks, fill, 1);
   return out;
 }
 

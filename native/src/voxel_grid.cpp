@@ -167,29 +167,27 @@ static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
   constexpr int64_t kChunk = 16384;
   const int64_t nt = int64_t(tris.size()), nchunks = (nt + kChunk - 1) / kChunk;
   std::vector<std::vector<Crossing>> found(static_cast<size_t>(nchunks));
-  parallel_for(
-      nchunks,
-      [&](int64_t chunk) {
-        std::vector<Crossing>& out = found[size_t(chunk)];
-        const int64_t end = std::min(nt, (chunk + 1) * kChunk);
-        for (int64_t t = chunk * kChunk; t < end; ++t) {
-          Eigen::Vector3d p[3];
-          for (int k = 0; k < 3; ++k) p[k] = (V.row(tris[t][k]).transpose() - g.origin) / g.h;
-          for (int a = 0; a < 3; ++a) {
-            const int nb = g.dims[(a + 1) % 3], nc = g.dims[(a + 2) % 3];
-            int jb0, jb1, jc0, jc1;
-            if (!geometry::rays_in_box(p, a, nb, nc, jb0, jb1, jc0, jc1)) continue;
-            if (geometry::seen_area(p, a) == 0.0) continue;  // parallel to the ray
-            for (int jc = jc0; jc <= jc1; ++jc)
-              for (int jb = jb0; jb <= jb1; ++jb) {
-                double ta;
-                if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, ta))
-                  out.push_back({col0[a] + int64_t(jc) * nb + jb, ta});
-              }
+  const auto cross_chunk = [&](int64_t chunk) {
+    std::vector<Crossing>& out = found[size_t(chunk)];
+    const int64_t end = std::min(nt, (chunk + 1) * kChunk);
+    for (int64_t t = chunk * kChunk; t < end; ++t) {
+      Eigen::Vector3d p[3];
+      for (int k = 0; k < 3; ++k) p[k] = (V.row(tris[t][k]).transpose() - g.origin) / g.h;
+      for (int a = 0; a < 3; ++a) {
+        const int nb = g.dims[(a + 1) % 3], nc = g.dims[(a + 2) % 3];
+        int jb0, jb1, jc0, jc1;
+        if (!geometry::rays_in_box(p, a, nb, nc, jb0, jb1, jc0, jc1)) continue;
+        if (geometry::seen_area(p, a) == 0.0) continue;  // parallel to the ray
+        for (int jc = jc0; jc <= jc1; ++jc)
+          for (int jb = jb0; jb <= jb1; ++jb) {
+            double ta;
+            if (geometry::axis_line_crossing(p, a, jb + geometry::kRayB, jc + geometry::kRayC, ta))
+              out.push_back({col0[a] + int64_t(jc) * nb + jb, ta});
           }
-        }
-      },
-      1);
+      }
+    }
+  };
+  parallel_for(nchunks, cross_chunk, 1);
   // Bucket by column (CSR).
   std::vector<int64_t> start(static_cast<size_t>(col0[3] + 1), 0);
   for (const auto& part : found)
@@ -205,30 +203,28 @@ static std::vector<uint8_t> parity_votes(const Grid& g, const RowMatrixX3d& V,
   for (int a = 0; a < 3; ++a) {
     const int b = (a + 1) % 3, c = (a + 2) % 3;
     const int nb = g.dims[b], nc = g.dims[c], na = g.dims[a];
-    parallel_for(
-        int64_t(nb) * nc,
-        [&](int64_t col) {
-          double* xs = at.data() + start[size_t(col0[a] + col)];
-          double* xs_end = at.data() + start[size_t(col0[a] + col) + 1];
-          if (xs == xs_end) return;
-          std::sort(xs, xs_end);
-          // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
-          xs_end = std::unique(xs, xs_end, [](double u, double v) { return std::abs(u - v) < 1e-9; });
-          const int jb = int(col % nb), jc = int(col / nb);
-          const int total = int(xs_end - xs);
-          int below = 0;
-          for (int k = 0; k < na; ++k) {
-            const double centre = k + 0.5;
-            while (below < total && xs[below] < centre) ++below;
-            Eigen::Vector3i cell;
-            cell[a] = k;
-            cell[b] = jb;
-            cell[c] = jc;
-            const int64_t id = g.index(cell.x(), cell.y(), cell.z());
-            votes[id] += uint8_t((below & 1) + ((total - below) & 1));
-          }
-        },
-        64);
+    const auto vote_column = [&](int64_t col) {
+      double* xs = at.data() + start[size_t(col0[a] + col)];
+      double* xs_end = at.data() + start[size_t(col0[a] + col) + 1];
+      if (xs == xs_end) return;
+      std::sort(xs, xs_end);
+      // Coincident crossings (duplicated faces in a soup, a ray through a shared edge) count once.
+      xs_end = std::unique(xs, xs_end, [](double u, double v) { return std::abs(u - v) < 1e-9; });
+      const int jb = int(col % nb), jc = int(col / nb);
+      const int total = int(xs_end - xs);
+      int below = 0;
+      for (int k = 0; k < na; ++k) {
+        const double centre = k + 0.5;
+        while (below < total && xs[below] < centre) ++below;
+        Eigen::Vector3i cell;
+        cell[a] = k;
+        cell[b] = jb;
+        cell[c] = jc;
+        const int64_t id = g.index(cell.x(), cell.y(), cell.z());
+        votes[id] += uint8_t((below & 1) + ((total - below) & 1));
+      }
+    };
+    parallel_for(int64_t(nb) * nc, vote_column, 64);
   }
   return votes;
 }

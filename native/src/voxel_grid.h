@@ -33,11 +33,12 @@ struct Grid {
     return x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z);
   }
   int64_t size() const { return int64_t(dims.x()) * dims.y() * dims.z(); }
-  // The cell of a point of the mesh (inside the grid: no overflow of floor_int).
+  // The cell of point p, clamped to the grid: clamped in double, then floored (the same as the
+  // floor clamped, for integer bounds), so floor_int never sees a value beyond int's range.
   Eigen::Vector3i cell_of(const Eigen::Vector3d& p) const {
     Eigen::Vector3i c;
     for (int a = 0; a < 3; ++a)
-      c[a] = std::clamp(geometry::floor_int((p[a] - origin[a]) / h), 0, dims[a] - 1);
+      c[a] = geometry::floor_int(std::clamp((p[a] - origin[a]) / h, 0.0, double(dims[a] - 1)));
     return c;
   }
 };

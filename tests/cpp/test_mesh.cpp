@@ -5,9 +5,11 @@
 #include <gtest/gtest.h>
 #include <larap/errors.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "parallel.h"
 #include "test_meshes.h"
@@ -17,41 +19,23 @@ using namespace larap;
 namespace {
 
 // A torus of quads whose faces are, in turn, a quad, its two triangles, a pentagon (the quad with
-// a repeated corner), a degenerate triangle, an edge and an edge given twice over (u v u): every
-// kind of face triangulate and segments tell apart, in a mesh large enough for several chunks.
+// a repeated corner), a triangle that is an edge there and back (u v u), an edge, an edge with a
+// repeated first corner (u u v), one vertex, and one vertex twice: every kind of face triangulate
+// and segments tell apart, in a mesh large enough for two chunks.
 PolygonMesh mixed_faces(int n_major, int n_minor) {
   const PolygonMesh t = gen::torus(1.0, 0.35, n_major, n_minor);
   PolygonMesh m;
   m.vertices = t.vertices;
   m.face_offsets = {0};
-  auto face = [&](std::initializer_list<int64_t> ids) {
-    m.face_indices.insert(m.face_indices.end(), ids);
-    m.face_offsets.push_back(int64_t(m.face_indices.size()));
-  };
-  for (int64_t f = 0; f < t.num_faces(); ++f) {
-    const int64_t* q = t.face_indices.data() + t.face_offsets[f];
-    switch (f % 6) {
-      case 0:
-        face({q[0], q[1], q[2], q[3]});
-        break;
-      case 1:
-        face({q[0], q[1], q[2]});
-        face({q[0], q[2], q[3]});
-        break;
-      case 2:
-        face({q[0], q[1], q[1], q[2], q[3]});
-        break;
-      case 3:
-        face({q[0], q[1], q[0]});
-        break;
-      case 4:
-        face({q[0], q[1]});
-        break;
-      default:
-        face({q[2], q[3], q[2]});
-        break;
+  // The faces made of each quad of the torus, by its index mod 8, as corners of the quad.
+  const std::vector<std::vector<std::vector<int>>> kinds = {
+      {{0, 1, 2, 3}}, {{0, 1, 2}, {0, 2, 3}}, {{0, 1, 1, 2, 3}}, {{0, 1, 0}}, {{0, 1}}, {{2, 2, 3}}, {{1}},
+      {{3, 3}}};
+  for (int64_t f = 0; f < t.num_faces(); ++f)
+    for (const std::vector<int>& corners : kinds[size_t(f % 8)]) {
+      for (int c : corners) m.face_indices.push_back(t.face_indices[size_t(t.face_offsets[f] + c)]);
+      m.face_offsets.push_back(int64_t(m.face_indices.size()));
     }
-  }
   return m;
 }
 
@@ -93,12 +77,12 @@ std::string message_of(const PolygonMesh& m) {
 }  // namespace
 
 TEST(Mesh, TriangulateAndSegmentsKeepTheFaceOrderWhateverTheThreadCount) {
-  const PolygonMesh m = mixed_faces(400, 200);  // 93,334 faces: two chunks
+  const PolygonMesh m = mixed_faces(400, 200);  // 90,000 faces: two chunks
   ASSERT_GT(m.num_faces(), 65536);
   const std::vector<Eigen::Vector3i> tris = serial_triangles(m);
   const std::vector<Eigen::Vector2i> segs = serial_segments(m);
-  ASSERT_GT(tris.size(), 40000u);
-  ASSERT_GT(segs.size(), 20000u);
+  ASSERT_EQ(tris.size(), 60000u);  // 6 per 8 faces of the torus
+  ASSERT_EQ(segs.size(), 30000u);  // 3 per 8
   const int before = num_threads();
   for (int n : {1, 2, 8}) {
     set_num_threads(n);
@@ -110,19 +94,26 @@ TEST(Mesh, TriangulateAndSegmentsKeepTheFaceOrderWhateverTheThreadCount) {
 
 TEST(Mesh, ValidationNamesTheFirstProblem) {
   const PolygonMesh good = mixed_faces(400, 200);
+  ASSERT_EQ(good.num_faces(), 90000);
   EXPECT_EQ(message_of(good), "");
+  const auto with_two_corners = [&](int64_t from) {  // the first face from `from` on with 2 corners
+    while (good.face_offsets[from + 1] - good.face_offsets[from] < 2) ++from;
+    return from;
+  };
+  const int64_t f1 = with_two_corners(20), f2 = with_two_corners(85000);
   const int before = num_threads();
   for (int n : {1, 2, 8}) {
     set_num_threads(n);
     PolygonMesh m = good;
     m.vertices(70001, 2) = std::numeric_limits<double>::infinity();
     m.vertices(150, 1) = std::nan("");
-    m.face_indices[m.face_offsets[90000] + 1] = -3;  // a bad vertex is named before any face
+    m.face_indices[size_t(m.face_offsets[f2] + 1)] = -3;  // a bad vertex is named before any face
     EXPECT_NE(message_of(m).find("vertices[150] has a non-finite coordinate"), std::string::npos)
         << message_of(m);
     m.vertices = good.vertices;
-    m.face_indices[m.face_offsets[20] + 1] = m.num_vertices();
-    EXPECT_NE(message_of(m).find("face 20 refers to vertex " + std::to_string(m.num_vertices())),
+    m.face_indices[size_t(m.face_offsets[f1] + 1)] = m.num_vertices();
+    EXPECT_NE(message_of(m).find("face " + std::to_string(f1) + " refers to vertex " +
+                                 std::to_string(m.num_vertices())),
               std::string::npos)
         << message_of(m);
     m.face_indices = good.face_indices;
@@ -133,13 +124,11 @@ TEST(Mesh, ValidationNamesTheFirstProblem) {
     m.face_offsets = good.face_offsets;
     m.face_offsets[60001] = m.face_offsets[60000];
     EXPECT_NE(message_of(m).find("face 60000 has no vertices"), std::string::npos) << message_of(m);
-    m.face_offsets.back() += 1;  // past the indices
+    m.face_offsets.back() += 1;  // past the indices, but after the empty face
     EXPECT_NE(message_of(m).find("face 60000 has no vertices"), std::string::npos) << message_of(m);
     m.face_offsets = good.face_offsets;
     m.face_offsets.back() += 1;
-    EXPECT_NE(message_of(m).find("face " + std::to_string(m.num_faces() - 1) + " has invalid offsets"),
-              std::string::npos)
-        << message_of(m);
+    EXPECT_NE(message_of(m).find("face 89999 has invalid offsets"), std::string::npos) << message_of(m);
   }
   set_num_threads(before);
 }

@@ -2,6 +2,7 @@
 // Run: cmake --build build --target larap_tests && ctest --test-dir build -R MeshParts
 #include <gtest/gtest.h>
 
+#include <initializer_list>
 #include <set>
 
 #include "mesh_parts.h"
@@ -52,17 +53,31 @@ TEST(MeshParts, ALooseVertexAtABodysCornerJoinsIt) {
 TEST(MeshParts, SameWhateverTheThreadCount) {
   // The faces are joined by several threads at once (a union-find whose roots are the smallest
   // members, so the order does not matter): a soup of many small triangles (every part a class of
-  // many links), two tori and a loose point, with 1, 2 and 8 threads.
+  // many links), two tori, a loose point and a long polyline, with 1, 2 and 8 threads (TBB may run
+  // fewer: at most the machine's cores).
   const PolygonMesh soup = unwelded(gen::torus(1.0, 0.35, 120, 60));
+  // The polyline's edges are listed from its far end: each union links a fresh root, so the links
+  // form one chain through all its vertices (reading the roots off must not walk it from every
+  // vertex: that took 2.5 s at 80,000 vertices).
+  PolygonMesh line;
+  const int nl = 100000;
+  line.vertices.resize(nl, 3);
+  line.face_offsets = {0};
+  for (int i = 0; i < nl; ++i) line.vertices.row(i) << 10.0 + 1e-3 * i, 0.0, 0.0;
+  for (int i = nl - 2; i >= 0; --i) {
+    line.face_indices.insert(line.face_indices.end(), {int64_t(i), int64_t(i + 1)});
+    line.face_offsets.push_back(int64_t(line.face_indices.size()));
+  }
   const PolygonMesh m = gen::concat(
-      {soup, gen::torus(3.0, 0.35, 200, 100), gen::torus(3.0, 0.2, 30, 10), gen::point({9, 9, 9})});
+      {soup, gen::torus(3.0, 0.35, 200, 100), gen::torus(3.0, 0.2, 30, 10), gen::point({9, 9, 9}), line});
   const int before = num_threads();
   set_num_threads(1);
   const std::vector<int32_t> one = mesh_parts(m);
-  EXPECT_EQ(count(one), 4u);  // the soup is one part through its shared positions
+  EXPECT_EQ(count(one), 5u);  // the soup is one part through its shared positions
   for (int64_t v = 0; v < int64_t(one.size()); ++v) ASSERT_LE(one[size_t(v)], v);  // named by the smallest
   EXPECT_EQ(one[0], 0);
   EXPECT_EQ(one[size_t(soup.num_vertices())], int32_t(soup.num_vertices()));
+  EXPECT_EQ(one.back(), int32_t(m.num_vertices() - nl));  // the polyline, named by its first vertex
   for (int n : {2, 8}) {
     set_num_threads(n);
     EXPECT_EQ(mesh_parts(m), one) << n << " threads";

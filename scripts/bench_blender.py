@@ -245,4 +245,5 @@ def main():
         print("appended to", args.out)
 
 
-main()
+if __name__ == "__main__":  # Blender runs a --python script as __main__; importing it runs nothing
+    main()

@@ -82,6 +82,8 @@ class CpuBackend final : public Backend {
     Eigen::SparseMatrix<double> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     M_ = handle_matrix(hs, n);
+    rest_pc_ = lat_.rest.topRows(n).rowwise() - hs.origin.transpose();  // the rest's moments: per handle set
+    rest_mp_ = M_ * rest_pc_;
     G_ = tie_matrix(hs, n);  // the glue of carried parts and the junction braces (may be empty)
     A += M_ + G_;
     A.makeCompressed();
@@ -109,8 +111,9 @@ class CpuBackend final : public Backend {
   void get_pose(RowMatrixX3d& nodes) const override { nodes = pose_; }
 
   void moments(std::vector<ComponentMoments>& now, std::vector<ComponentMoments>& rest) override {
-    moments_of(pose_, now);
-    moments_of(lat_.rest, rest);
+    const RowMatrixX3d Pc = pose_.topRows(nr_).rowwise() - hs_.origin.transpose();
+    moments_of(Pc, M_ * Pc, now);  // M is symmetric
+    moments_of(rest_pc_, rest_mp_, rest);
   }
 
   void apply_rigid(const std::vector<ComponentMotion>& motions, bool from_rest) override {
@@ -167,10 +170,8 @@ class CpuBackend final : public Backend {
   void transfer(const Binding& b, float* out, SolveStats& stats) override { transfer_any(b, out, stats); }
 
  private:
-  // The moments of the handle rows for the pose P (moments()).
-  void moments_of(const RowMatrixX3d& P, std::vector<ComponentMoments>& out) const {
-    const RowMatrixX3d Pc = P.topRows(nr_).rowwise() - hs_.origin.transpose();
-    const RowMatrixX3d MP = M_ * Pc;  // M is symmetric
+  // The moments of the handle rows for a pose: Pc its real rows less hs_.origin, MP = M Pc.
+  void moments_of(const RowMatrixX3d& Pc, const RowMatrixX3d& MP, std::vector<ComponentMoments>& out) const {
     out.assign(size_t(hs_.num_components), ComponentMoments{});
     for (int64_t i = 0; i < nr_; ++i) {
       if (hs_.q[i] == 0.0) continue;
@@ -257,6 +258,7 @@ class CpuBackend final : public Backend {
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
   Eigen::SparseMatrix<double> G_;  // the ties: glue and braces (the system and the energy)
+  RowMatrixX3d rest_pc_, rest_mp_;  // the rest lattice's real rows less hs_.origin, and M times them
   RowMatrixX3d H_;                 // H~ of the current targets
   std::vector<double> K_;          // K~ per component
   bool targets_set_ = false;

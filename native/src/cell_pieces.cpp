@@ -15,6 +15,7 @@
 #include "part_pieces.h"
 #include "surface_patches.h"
 #include "voxel_inside.h"
+#include "voxel_rows.h"
 
 namespace larap {
 namespace {
@@ -28,29 +29,6 @@ struct TinyUnionFind {
     return x;
   }
   void unite(int a, int b) { p[find(a)] = find(b); }
-};
-
-// The 6-neighbours of the voxels of a k^3 grid (vi = i + k (j + k l)) without divisions: bit f of
-// open[vi] says whether face f (-x, +x, -y, +y, -z, +z) leads to a voxel of the grid, step[f] is
-// the index step across it.
-struct VoxelSteps {
-  std::vector<uint8_t> open;
-  int32_t step[6];
-  explicit VoxelSteps(int k) : open(size_t(k) * k * k), step{-1, 1, -k, k, -k * k, k * k} {
-    size_t vi = 0;
-    for (int l = 0; l < k; ++l)
-      for (int j = 0; j < k; ++j)
-        for (int i = 0; i < k; ++i, ++vi)
-          open[vi] = uint8_t((i > 0) | (i + 1 < k) << 1 | (j > 0) << 2 | (j + 1 < k) << 3 | (l > 0) << 4 |
-                             (l + 1 < k) << 5);
-  }
-  // Calls visit(ni) for each neighbour ni of voxel vi.
-  template <class F>
-  void each(int32_t vi, F&& visit) const {
-    const uint8_t o = open[size_t(vi)];
-    for (int f = 0; f < 6; ++f)
-      if (o >> f & 1) visit(vi + step[f]);
-  }
 };
 
 }  // namespace
@@ -354,29 +332,33 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     return vindex(c[0], c[1], c[2]);
   };
   std::vector<int64_t> across(static_cast<size_t>(6 * nb));  // the analysed neighbour over each face, or -1
-  parallel_for(nb, [&](int64_t b) {
+  auto find_across = [&](int64_t b) {
     const Eigen::Vector3i X = g.coords(surf_cells[cand_surf[b]]);
     for (int f = 0; f < 6; ++f) {
       Eigen::Vector3i Y = X;
       Y[f / 2] += f % 2 ? 1 : -1;
       across[size_t(6 * b + f)] = block_of_cell(Y);
     }
-  }, 256);
-  const VoxelSteps steps(k);
+  };
+  parallel_for(nb, find_across, 256);
+
   std::vector<std::vector<int32_t>> seeds(static_cast<size_t>(nb));  // unflooded air, per cell
-  auto flood = [&](int64_t b) {  // from the cell's seeds, inside the cell
+  const int64_t k2 = int64_t(k) * k;
+  // From the cell's seeds (already air), inside the cell, on its bit rows (voxel_rows.h): the
+  // voxels the flood reaches are written afterwards, each store atomic, as neighbours read the
+  // faces while it runs.
+  auto flood = [&](int64_t b) {
     std::vector<int32_t>& stack = seeds[size_t(b)];
+    if (stack.empty()) return;
     uint8_t* v = vox.data() + b * k3;
-    while (!stack.empty()) {
-      const int32_t vi = stack.back();
-      stack.pop_back();
-      steps.each(vi, [&](int32_t ni) {
-        if (v[ni] == 0) {
-          __atomic_store_n(&v[ni], uint8_t(2), __ATOMIC_RELAXED);  // neighbours read the faces
-          stack.push_back(ni);
-        }
-      });
+    std::vector<uint64_t> open(static_cast<size_t>(k2)), air(static_cast<size_t>(k2), 0);
+    rows_equal(v, k, 0, open.data());
+    for (const int32_t vi : stack) {
+      open[size_t(vi / k)] |= uint64_t(1) << (vi % k);
+      air[size_t(vi / k)] |= uint64_t(1) << (vi % k);
     }
+    flood_rows(k, open.data(), air.data());
+    for_each_bit(air.data(), k, [v](int64_t vi) { __atomic_store_n(&v[vi], uint8_t(2), __ATOMIC_RELAXED); });
     std::vector<int32_t>().swap(stack);
   };
   std::vector<uint8_t> gained(static_cast<size_t>(nb), 0);
@@ -447,24 +429,18 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   static_assert(kHeld > 2, "kHeld is gone before the pieces are labelled (3 + piece)");
   parallel_for(nb, [&](int64_t b) {
     uint8_t* v = vox.data() + b * k3;
-    if (std::find(v, v + k3, uint8_t(1)) == v + k3) {
+    std::vector<uint64_t> held(static_cast<size_t>(k2)), surface(static_cast<size_t>(k2)),
+        near(static_cast<size_t>(k2));
+    rows_equal(v, k, 1, surface.data());
+    if (std::all_of(surface.begin(), surface.end(), [](uint64_t m) { return m == 0; })) {
       std::replace(v, v + k3, kHeld, uint8_t(0));
       return;
     }
-    std::vector<int32_t> stack;
-    auto take = [&](int32_t ni) {
-      if (v[ni] == kHeld) {
-        v[ni] = 0;
-        stack.push_back(ni);
-      }
-    };
-    for (int32_t vi = 0; vi < int32_t(k3); ++vi)
-      if (v[vi] == 1) steps.each(vi, take);
-    while (!stack.empty()) {
-      const int32_t vi = stack.back();
-      stack.pop_back();
-      steps.each(vi, take);
-    }
+    rows_equal(v, k, kHeld, held.data());
+    dilate_rows(k, surface.data(), near.data());
+    for (int64_t r = 0; r < k2; ++r) near[size_t(r)] &= held[size_t(r)];  // held, next to the surface
+    flood_rows(k, held.data(), near.data());  // the held voxels that reach the surface
+    for_each_bit(near.data(), k, [v](int64_t vi) { v[vi] = 0; });
     for (int64_t vi = 0; vi < k3; ++vi)
       if (v[vi] == kHeld) v[vi] = 2;
   }, 4);
@@ -482,7 +458,6 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     std::vector<int32_t> offsets, parts;
   };
   std::vector<FaceSets> face_sets(static_cast<size_t>(by_part ? nb : 0));
-  const int64_t k2 = int64_t(k) * k;
   auto for_face_voxels = [&](auto&& visit) {  // visit(face voxel index f * k^2 + w * k + u, voxel)
     for (int f = 0; f < 6; ++f)
       for (int w = 0; w < k; ++w)
@@ -492,9 +467,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // Pieces: 6-connected components of the material voxels of each cell.
   std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
   std::vector<std::vector<int32_t>> sizes(static_cast<size_t>(nb));  // material voxels per piece
-  parallel_for(nb, [&](int64_t b) {
+  auto label_pieces = [&](int64_t b) {
     uint8_t* v = vox.data() + b * k3;
-    std::vector<int32_t> todo;
     auto& size = sizes[size_t(b)];
     int32_t np = 0;
     if (by_part && part_of[b] == kSeveral) {
@@ -544,27 +518,28 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
         kind[size_t(idx)] = v[vi] == 2 ? kAirVoxel : v[vi] == 1 ? kSurfaceVoxel : kEnclosedVoxel;
       });
     }
-    for (int64_t start = 0; start < k3; ++start) {
-      if (v[start] >= 2) continue;
-      const uint8_t label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
-      ++np;
-      if (size.size() < 253) size.push_back(0);
-      v[start] = label;
-      todo.push_back(int32_t(start));
-      while (!todo.empty()) {
-        const int32_t vi = todo.back();
-        todo.pop_back();
-        ++size[label - 3];
-        steps.each(vi, [&](int32_t ni) {
-          if (v[ni] < 2) {
-            v[ni] = label;
-            todo.push_back(ni);
-          }
-        });
+    // Pieces in the order of their first voxel: the lowest bit of the first row left.
+    std::vector<uint64_t> left(static_cast<size_t>(k2)), piece(static_cast<size_t>(k2));
+    rows_below(v, k, 2, left.data());
+    for (int64_t r0 = 0; r0 < k2; ++r0)
+      while (left[size_t(r0)]) {
+        const uint8_t label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
+        ++np;
+        if (size.size() < 253) size.push_back(0);
+        std::fill(piece.begin(), piece.end(), 0);
+        piece[size_t(r0)] = left[size_t(r0)] & (~left[size_t(r0)] + 1);
+        flood_rows(k, left.data(), piece.data());
+        int64_t n = 0;
+        for (int64_t r = r0; r < k2; ++r) {  // no earlier row has material left
+          n += __builtin_popcountll(piece[size_t(r)]);
+          left[size_t(r)] &= ~piece[size_t(r)];
+        }
+        size[label - 3] += int32_t(n);
+        for_each_bit(piece.data(), k, [v, label](int64_t vi) { v[vi] = label; });
       }
-    }
     pieces[b] = std::max(1, std::min(np, 253));
-  }, 4);
+  };
+  parallel_for(nb, label_pieces, 4);
 
   // Links across faces, per analysed cell (deterministic order). When parts are told apart, two
   // touching face voxels link their pieces if either is enclosed or one part hits both; a piece

@@ -73,16 +73,17 @@ def bind(obj, *, keep_pose=True, progress=None):
     A failure leaves the object as it was (mesh, keys, settings, previous binding)."""
     check_object(obj, bind=True)
     p = _progress(progress, 3)
-    with p, preserve_on_error(obj):
-        return _bind(obj, keep_pose, p)
+    with p, preserve_on_error(obj) as snap:
+        return _bind(obj, keep_pose, p, snap["rest"])
 
 
-def _bind(obj, keep_pose, p):
+def _bind(obj, keep_pose, p, rest):
+    """Bind from the rest positions ``rest`` (read by the caller's snapshot, nothing changed since)."""
     s = obj.larap
     me = obj.data
     rebind = s.bound and keep_pose
     p.step(0)
-    rt = build_runtime(obj)  # the long part: the lattice and its factorisation
+    rt = build_runtime(obj, rest)  # the long part: the lattice and its factorisation
     p.step(1)
     # Stored explicitly (an unset property is not saved): a later default leaves this bind alone.
     s.gamma = upgrade_settings(s)
@@ -97,7 +98,7 @@ def _bind(obj, keep_pose, p):
                 if h.rest_target is None:  # bound before rest targets were recorded: it is this target's
                     h.rest_target, h.rest_subtarget = h.target, h.subtarget
             elif rebind:
-                if not retarget_keep_pose(obj, h, membership(obj, rt).get(h.vertex_group)):
+                if not retarget_keep_pose(obj, h, membership(obj, rt, rt.rest).get(h.vertex_group)):
                     h.has_rest = False
             else:
                 record_rest(h)
@@ -109,6 +110,9 @@ def _bind(obj, keep_pose, p):
         s.created_basis = True
     s.bound = True
     p.step(2)
+    # The handle groups, read with the rest shape build_runtime read (the Basis made since is a copy
+    # of it): the solve finds them read.
+    membership(obj, rt, rt.rest)
     result = solve(obj, weights="final", validate="fast")
     p.step(3)
     return result
@@ -267,7 +271,8 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
         raise LarapError("Vertex group %r is already a handle" % vertex_group)
     if obj.mode == "EDIT":
         obj.update_from_editmode()
-    idx = np.flatnonzero(vertex_group_weights(obj, [vertex_group])[vertex_group] > 0.0)
+    mesh_pts = rest_positions(obj)  # read once: the group's weights, its rest and the mesh's size
+    idx = np.flatnonzero(vertex_group_weights(obj, [vertex_group], mesh_pts)[vertex_group] > 0.0)
     if len(idx) == 0:
         raise LarapError("Vertex group %r has no vertices" % vertex_group)
     if target is not None:
@@ -275,7 +280,7 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
             raise LarapError("A mesh cannot be its own handle target")
         if subtarget and (target.type != "ARMATURE" or subtarget not in target.pose.bones):
             raise LarapError("Bone %r not found in %r" % (subtarget, target.name))
-    rest = rest_positions(obj)[idx].astype(np.float64)
+    rest = mesh_pts[idx].astype(np.float64)
     fit = np.eye(4)
     rest_matrix = None
     if target is None:
@@ -287,7 +292,6 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
         mw = obj.matrix_world
         centre = rest.mean(axis=0)
         scale = max(mw.to_scale().length / 3 ** 0.5, 1e-9)
-        mesh_pts = rest_positions(obj)
         mesh_size = float(np.linalg.norm(mesh_pts.max(axis=0) - mesh_pts.min(axis=0))) if len(mesh_pts) else 1.0
         radius = empty_size(rest, max(mesh_size, 1e-3), view_distance / scale if view_distance else None)
         name = TARGET_PREFIX + (vertex_group[len(HANDLE_GROUP_PREFIX):] if vertex_group.startswith(HANDLE_GROUP_PREFIX)

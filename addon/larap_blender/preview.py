@@ -42,6 +42,7 @@ import bpy
 import numpy as np
 
 from . import scene_index
+from .mesh_data import loop_triangles
 from .runtime import runtime
 
 # Kept across importlib.reload (F8 / re-enable), so a reload never orphans a callback or leaves
@@ -316,10 +317,7 @@ class _GpuMesh:
         cid, frac = d.trilinear_binding()
         self.rest_nodes = np.asarray(d.lattice_rest(), dtype=np.float32)
         self.cell_size = float(d.cell_size)
-        me.calc_loop_triangles()
-        tris = np.empty(len(me.loop_triangles) * 3, dtype=np.int32)
-        me.loop_triangles.foreach_get("vertices", tris)
-        tris = tris.reshape(-1, 3)
+        tris = loop_triangles(me)  # 50 ms at 2M triangles (into int32: 210 ms; mesh_data._get_ids)
         self.arrays = {"rest": np.ascontiguousarray(rt.rest, dtype=np.float32),
                        "nrm": _vertex_normals(rt.rest, tris),
                        "cell": np.asarray(cid, dtype=np.float32),

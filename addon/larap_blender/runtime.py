@@ -264,13 +264,15 @@ def _new_runtime(obj, rest, faces):
     return rt
 
 
-def _refresh(obj, key, arrays, topo, rebuild):
-    """Fill the object's runtime from its rest shape as it is now; a new engine when ``rebuild``,
-    or when the settings, rest positions or topology differ from what the cached one was built on."""
+def _refresh(obj, key, arrays, topo, rebuild, rest=None):
+    """Fill the object's runtime from its rest shape as it is now (``rest``: its positions, when
+    the caller has just read them); a new engine when ``rebuild``, or when the settings, rest
+    positions or topology differ from what the cached one was built on."""
     s = obj.larap
     me = obj.data
     sig = _settings_sig(s)
-    rest = rest_positions(obj)
+    if rest is None:
+        rest = rest_positions(obj)
     rest_hash = array_hash(rest)
     rt = _RUNTIMES.get(key)
     if (rebuild or rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash
@@ -299,13 +301,14 @@ def _counts(me):
     return len(me.vertices), len(me.polygons), len(me.loops), len(me.edges)
 
 
-def build_runtime(obj):
-    """Bind: a new engine from the rest shape as it is now, replacing the cached one."""
+def build_runtime(obj, rest=None):
+    """Bind: a new engine from the rest shape as it is now, replacing the cached one. ``rest``: the
+    rest positions (``mesh_data.rest_positions``) when the caller has just read them."""
     require_engine()
     key = claim_key(obj)
     me = obj.data
     arrays = topology_arrays(me)
-    return _refresh(obj, key, arrays, topology_hash(me, arrays), rebuild=True)
+    return _refresh(obj, key, arrays, topology_hash(me, arrays), rebuild=True, rest=rest)
 
 
 def ensure_runtime(obj, validate="full"):

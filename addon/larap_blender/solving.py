@@ -112,7 +112,8 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     t0 = time.perf_counter()
     rt = ensure_runtime(obj, validate)
     d = rt.deformer
-    pose = gather(obj, rt, overrides)
+    # A full validation has just read the rest shape (rt.rest): reading the vertex groups reuses it.
+    pose = gather(obj, rt, overrides, rt.rest if validate == "full" else None)
     warnings = pose.warnings
     wname = _weights_name(s, weights)
     final = weights == "final"
@@ -180,7 +181,7 @@ def current_pose(obj):
     check_object(obj, need_bound=True)
     s = obj.larap
     rt = ensure_runtime(obj, "full")
-    membership(obj, rt)  # the handle groups as they are now (a weight painted since the pose)
+    membership(obj, rt, rt.rest)  # the handle groups as they are now (a weight painted since the pose)
     posed = key_positions(obj, s.shape_key)
     if posed is not None and not rt.needs_catchup and key_up_to_date(obj):
         return posed

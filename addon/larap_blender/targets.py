@@ -254,15 +254,16 @@ def on_target_changed(handle):
         print("LARAP: retargeting %r: %s: %s" % (getattr(handle, "vertex_group", "?"), type(exc).__name__, exc))
 
 
-def membership(obj, rt):
+def membership(obj, rt, rest=None):
     """{vertex group: sorted int64 vertex ids (weight > 0)} of the enabled handles, cached in the
     runtime ``rt`` until the set of handle groups changes (or the runtime asks for a refresh);
-    ``rt.membership_weights`` holds their weights, aligned with the ids."""
+    ``rt.membership_weights`` holds their weights, aligned with the ids. ``rest``: the rest
+    positions when the caller has just read them (see :func:`mesh_data.vertex_group_weights`)."""
     s = obj.larap
     names = tuple(h.vertex_group for h in s.handles if h.enabled and h.vertex_group)
     available = tuple(nm for nm in names if nm in obj.vertex_groups)
     if rt.membership_sig != available:
-        weights = vertex_group_weights(obj, available)
+        weights = vertex_group_weights(obj, available, rest)
         rt.membership = {nm: np.flatnonzero(w > 0.0) for nm, w in weights.items()}
         rt.membership_weights = {nm: weights[nm][rt.membership[nm]].astype(np.float64) for nm in weights}
         rt.membership_sig = available
@@ -314,10 +315,11 @@ def singular(a):
     return not abs(np.linalg.det(a)) > 1e-9 * norm ** 3
 
 
-def gather(obj, rt, overrides=None):
-    """The HandlePose of the object's usable handles now; warnings name the skipped ones."""
+def gather(obj, rt, overrides=None, rest=None):
+    """The HandlePose of the object's usable handles now; warnings name the skipped ones.
+    ``rest``: the rest positions when the caller has just read them (:func:`membership`)."""
     s = obj.larap
-    groups = membership(obj, rt)
+    groups = membership(obj, rt, rest)
     warnings = ["handle's bone %r was renamed %r: the handle follows it" % pair for pair in follow_bone_renames(obj)]
     names, weights, maps = [], [], []
     for h in s.handles:

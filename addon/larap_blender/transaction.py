@@ -37,6 +37,7 @@ def _snapshot(obj):
             "id_props": {p: id_string(obj, p) for p in _ID_PROPS},
             "keys": None, "anim": None}
     snap["runtime"] = snapshot_entry(obj)
+    snap["rest"] = snap["mesh"]  # what mesh_data.rest_positions reads: the mesh, or the Basis key
     keys = me.shape_keys
     if keys is not None:
         n = len(me.vertices)
@@ -44,6 +45,9 @@ def _snapshot(obj):
         snap["keys"] = [(kb.name, block_positions(kb, n),
                          kb.relative_key.name if kb.relative_key else "",
                          {f: getattr(kb, f) for f in _KEY_FIELDS}) for kb in keys.key_blocks]
+        for kb, entry in zip(keys.key_blocks, snap["keys"]):
+            if kb == keys.reference_key:
+                snap["rest"] = entry[1]
         ad = keys.animation_data
         if ad is not None and ad.action is not None:
             snap["anim"] = (ad.action, {(fc.data_path, fc.array_index): [
@@ -121,7 +125,9 @@ def _restore(obj, snap):
 @contextlib.contextmanager
 def preserve_on_error(obj):
     """Snapshot the mesh positions, every shape key (data, settings, key animation), the LARAP
-    settings and the runtime; restore them if the block raises (then re-raise)."""
+    settings and the runtime; restore them if the block raises (then re-raise). Yields the
+    snapshot, whose ``"rest"`` is the rest positions as read now (``mesh_data.rest_positions``;
+    shared with the snapshot: read only)."""
     snap = _snapshot(obj)
     try:
         yield snap

@@ -160,9 +160,12 @@ def vertex_group_weights(obj, names, rest=None):
     """{name: (n,) float32 weights} for vertex groups, without a Python loop over vertices.
 
     Blender exposes vertex-group membership only per vertex, so this lets Blender's shape-key
-    mixer do it in C: a temporary key = Basis + (0,0,1) masked by the group, mixed alone with
-    ``shape_key_add(from_mix=True)``, gives Basis + weight * (0,0,1). The temporary keys are
-    removed and the mesh's shape-key state is restored.
+    mixer do it in C: temporary keys = Basis + (1,0,0), Basis + (0,1,0) and Basis + (0,0,1), each
+    masked by a group, mixed alone with ``shape_key_add(from_mix=True)``, give Basis + the three
+    groups' weights on x, y and z: one mix and one read for three groups, the temporary keys
+    written once and masked by the next three groups in turn (at 1M vertices a key's write or read
+    costs about 45 ms, a mix 13 ms). The temporary keys are removed and the mesh's shape-key state
+    is restored.
 
     ``rest``: the object's :func:`rest_positions` when the caller has just read them (nothing
     changed since), which are the Basis positions this needs (a mesh without keys gets a
@@ -184,7 +187,6 @@ def vertex_group_weights(obj, names, rest=None):
     use_relative = key.use_relative
     saved_mutes = [(kb.name, kb.mute) for kb in key.key_blocks]
     base = rest if rest is not None else block_positions(basis, n)
-    raised = base + np.array([0.0, 0.0, 1.0], dtype=np.float32)
     try:
         key.use_relative = True
         obj.show_only_shape_key = False
@@ -193,26 +195,35 @@ def vertex_group_weights(obj, names, rest=None):
                 kb.mute = True
         basis_mute = basis.mute
         basis.mute = False
-        for name in names:
-            tmp = obj.shape_key_add(name="_larap_tmp", from_mix=False)
-            mix = None
-            try:
+        tmps = []
+        try:
+            for axis in range(min(3, len(names))):
+                tmp = obj.shape_key_add(name="_larap_tmp", from_mix=False)
+                tmps.append(tmp)
+                raised = base.copy()
+                raised[:, axis] += np.float32(1.0)
                 write_block(tmp, raised)
                 tmp.relative_key = basis
-                tmp.vertex_group = name
                 tmp.slider_min, tmp.slider_max = 0.0, 1.0
                 tmp.value = 1.0
-                tmp.mute = False
+            for first in range(0, len(names), 3):
+                batch = names[first:first + 3]
+                for axis, tmp in enumerate(tmps):  # a key without a group of this batch stays out
+                    tmp.vertex_group = batch[axis] if axis < len(batch) else ""
+                    tmp.mute = axis >= len(batch)
                 mix = obj.shape_key_add(name="_larap_mix", from_mix=True)
-                mixed = block_positions(mix, n)
-            finally:
-                if mix is not None:
+                try:
+                    mixed = block_positions(mix, n)
+                finally:
                     obj.shape_key_remove(mix)
+                for axis, name in enumerate(batch):
+                    w = (mixed[:, axis] - base[:, axis]).astype(np.float32)
+                    if _mask_ignored(obj, name, w):
+                        w = np.zeros(n, np.float32)
+                    out[name] = w
+        finally:
+            for tmp in reversed(tmps):
                 obj.shape_key_remove(tmp)
-            w = (mixed[:, 2] - base[:, 2]).astype(np.float32)
-            if _mask_ignored(obj, name, w):
-                w = np.zeros(n, np.float32)
-            out[name] = w
         basis.mute = basis_mute
     finally:
         if not had_keys:

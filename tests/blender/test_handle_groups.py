@@ -154,3 +154,42 @@ def test_a_group_nobody_was_assigned_to_is_empty_not_every_vertex(core):
     everyone = obj.vertex_groups.new(name="Everyone")  # a group that really holds every vertex
     everyone.add(list(range(len(obj.data.vertices))), 1.0, "REPLACE")
     assert np.allclose(mesh_data.vertex_group_weights(obj, ["Everyone"])["Everyone"], 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("keys", [False, True])
+def test_vertex_group_weights_of_many_groups_in_one_call(keys):
+    """Seven groups read together (three per mix, on x, y and z; the last mix holds one): each
+    group's own weights, an empty group among them and one left unassigned read as empty, and the
+    object's shape keys as they were (names, mutes, values, active key) with or without keys."""
+    from larap_blender import mesh_data
+    obj = make_bar()
+    activate(obj)
+    n = len(obj.data.vertices)
+    if keys:
+        obj.shape_key_add(name="Basis", from_mix=False)
+        other = obj.shape_key_add(name="Other", from_mix=False)
+        other.value, other.mute = 0.3, True
+        obj.active_shape_key_index = 1
+    rng = np.random.default_rng(5)
+    expect = {}
+    for g in range(7):
+        name = "G%d" % g
+        vg = obj.vertex_groups.new(name=name)
+        w = np.zeros(n, np.float32)
+        if g != 4:  # G4: created, never assigned
+            ids = rng.choice(n, size=n // 5, replace=False)
+            w[ids] = rng.choice([0.25, 0.5, 0.75, 1.0], size=len(ids))
+            for wt in (0.25, 0.5, 0.75, 1.0):
+                vg.add([int(i) for i in ids[w[ids] == wt]], wt, "REPLACE")
+        expect[name] = w
+    before = [(kb.name, kb.mute, kb.value) for kb in obj.data.shape_keys.key_blocks] if keys else None
+    got = mesh_data.vertex_group_weights(obj, list(expect))
+    assert list(got) == list(expect)
+    for name, w in expect.items():
+        np.testing.assert_allclose(got[name], w, atol=1e-6, err_msg=name)
+    assert not got["G4"].any()
+    if keys:
+        assert [(kb.name, kb.mute, kb.value) for kb in obj.data.shape_keys.key_blocks] == before
+        assert obj.active_shape_key_index == 1
+    else:
+        assert obj.data.shape_keys is None

@@ -225,7 +225,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
-  // (a flood stack or the part sets' offsets, last-part table and union-find: 16 k^3), or before
+  // (a few rows of bits, or the part sets' offsets, last-part table and union-find: 16 k^3), or before
   // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
   // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over; the
   // rows' tables alive with the voxels, at most 3 rows per cell: about 100 bytes), 32
@@ -467,7 +467,7 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // Pieces: 6-connected components of the material voxels of each cell.
   std::vector<int32_t> pieces(static_cast<size_t>(nb), 0);
   std::vector<std::vector<int32_t>> sizes(static_cast<size_t>(nb));  // material voxels per piece
-  auto label_pieces = [&](int64_t b) {
+  auto find_pieces = [&](int64_t b) {
     uint8_t* v = vox.data() + b * k3;
     auto& size = sizes[size_t(b)];
     int32_t np = 0;
@@ -518,28 +518,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
         kind[size_t(idx)] = v[vi] == 2 ? kAirVoxel : v[vi] == 1 ? kSurfaceVoxel : kEnclosedVoxel;
       });
     }
-    // Pieces in the order of their first voxel: the lowest bit of the first row left.
-    std::vector<uint64_t> left(static_cast<size_t>(k2)), piece(static_cast<size_t>(k2));
-    rows_below(v, k, 2, left.data());
-    for (int64_t r0 = 0; r0 < k2; ++r0)
-      while (left[size_t(r0)]) {
-        const uint8_t label = uint8_t(3 + std::min(np, 252));  // more than 253 pieces: the rest merge
-        ++np;
-        if (size.size() < 253) size.push_back(0);
-        std::fill(piece.begin(), piece.end(), 0);
-        piece[size_t(r0)] = left[size_t(r0)] & (~left[size_t(r0)] + 1);
-        flood_rows(k, left.data(), piece.data());
-        int64_t n = 0;
-        for (int64_t r = r0; r < k2; ++r) {  // no earlier row has material left
-          n += __builtin_popcountll(piece[size_t(r)]);
-          left[size_t(r)] &= ~piece[size_t(r)];
-        }
-        size[label - 3] += int32_t(n);
-        for_each_bit(piece.data(), k, [v, label](int64_t vi) { v[vi] = label; });
-      }
+    np = label_pieces(v, k, size);
     pieces[b] = std::max(1, std::min(np, 253));
   };
-  parallel_for(nb, label_pieces, 4);
+  parallel_for(nb, find_pieces, 4);
 
   // Links across faces, per analysed cell (deterministic order). When parts are told apart, two
   // touching face voxels link their pieces if either is enclosed or one part hits both; a piece

@@ -9,6 +9,7 @@
 // whatever the order, so it equals a voxel-by-voxel flood fill bit for bit; the cost is a few
 // word operations per row and sweep instead of a stack push per voxel.
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 #ifdef __SSE2__
@@ -29,10 +30,18 @@ inline uint64_t fill_row(uint64_t seed, uint64_t open) {
   return up | down;
 }
 
-// Grows region (k^2 rows, each within open's) to every open voxel 6-connected to it through open
-// voxels.
-inline void flood_rows(int k, const uint64_t* open, uint64_t* region) {
+// The rows [first, last] that hold bits of a region (first > last: none).
+struct RowSpan {
+  int first, last;
+};
+
+// Grows region (k^2 rows, each within open's, its bits within rows `span`) to every open voxel
+// 6-connected to it through open voxels; returns the rows that then hold its bits. A sweep covers
+// the region's rows and k rows to either side (the rows it can reach next), so a small region
+// costs about its own rows, not the cell's.
+inline RowSpan flood_rows(int k, const uint64_t* open, uint64_t* region, RowSpan span) {
   const int rows = k * k;
+  if (span.first > span.last) return span;
   auto grow = [&](int r) {  // whether row r changed
     if (!open[r]) return false;
     const int j = r % k;
@@ -44,13 +53,27 @@ inline void flood_rows(int k, const uint64_t* open, uint64_t* region) {
     const uint64_t m = fill_row(from, open[r]);
     if (m == region[r]) return false;
     region[r] = m;
+    span.first = std::min(span.first, r);
+    span.last = std::max(span.last, r);
     return true;
   };
   for (bool changed = true; changed;) {
     changed = false;
-    for (int r = 0; r < rows; ++r) changed |= grow(r);
-    for (int r = rows - 1; r >= 0; --r) changed |= grow(r);
+    for (int r = std::max(0, span.first - k); r <= std::min(rows - 1, span.last + k); ++r) changed |= grow(r);
+    for (int r = std::min(rows - 1, span.last + k); r >= std::max(0, span.first - k); --r) changed |= grow(r);
   }
+  return span;
+}
+
+// The same, for a region anywhere in the cell.
+inline RowSpan flood_rows(int k, const uint64_t* open, uint64_t* region) {
+  RowSpan span{k * k, -1};
+  for (int r = 0; r < k * k; ++r)
+    if (region[r]) {
+      span.first = std::min(span.first, r);
+      span.last = r;
+    }
+  return flood_rows(k, open, region, span);
 }
 
 namespace voxel_rows_detail {
@@ -128,6 +151,36 @@ inline void dilate_rows(int k, const uint64_t* rows, uint64_t* out) {
     if (r + k < n) m |= rows[r + k];
     out[r] = m & full;
   }
+}
+
+// Labels the 6-connected pieces of a cell's material (v[vi] < 2) in the order of each piece's
+// first voxel: v[vi] = 3 + piece, at most 253 pieces (the rest merge into the last label, 255);
+// size[p]: the material voxels of piece p. Returns the number of pieces found. Each piece is
+// grown, counted, written and cleared over its own rows only, so that many small pieces cost
+// about their size each, not the cell's.
+inline int32_t label_pieces(uint8_t* v, int k, std::vector<int32_t>& size) {
+  const int rows = k * k;
+  std::vector<uint64_t> left(static_cast<size_t>(rows)), piece(static_cast<size_t>(rows), 0);
+  rows_below(v, k, 2, left.data());
+  int32_t np = 0;
+  for (int r0 = 0; r0 < rows; ++r0)
+    while (left[size_t(r0)]) {  // the lowest bit of the first row left starts the next piece
+      const uint8_t label = uint8_t(3 + std::min(np, 252));
+      ++np;
+      if (size.size() < 253) size.push_back(0);
+      piece[size_t(r0)] = left[size_t(r0)] & (~left[size_t(r0)] + 1);
+      const RowSpan span = flood_rows(k, left.data(), piece.data(), RowSpan{r0, r0});
+      int64_t n = 0;
+      for (int r = span.first; r <= span.last; ++r) {  // no row before r0 has material left
+        const uint64_t m = piece[size_t(r)];
+        n += __builtin_popcountll(m);
+        left[size_t(r)] &= ~m;
+        for (uint64_t bits = m; bits; bits &= bits - 1) v[int64_t(r) * k + __builtin_ctzll(bits)] = label;
+        piece[size_t(r)] = 0;
+      }
+      size[label - 3] += int32_t(n);
+    }
+  return np;
 }
 
 }  // namespace larap

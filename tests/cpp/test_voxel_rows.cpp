@@ -101,7 +101,11 @@ TEST(VoxelRows, FloodEqualsAVoxelByVoxelFlood) {
       std::vector<uint8_t> open(static_cast<size_t>(k3)), seed(static_cast<size_t>(k3), 0);
       std::bernoulli_distribution is_open(density);
       for (auto& x : open) x = is_open(rng);
-      for (int s = 0; s < 3; ++s) seed[size_t(rng() % k3)] = 1;
+      for (int s = 0; s < 3; ++s) {  // three seeds on open voxels, when there are any
+        int64_t at = int64_t(rng() % k3);
+        for (int64_t tries = 0; tries < k3 && !open[size_t(at)]; ++tries) at = (at + 1) % k3;
+        seed[size_t(at)] = 1;
+      }
       const std::vector<uint8_t> expect = flood_voxels(k, open, seed);
       std::vector<uint64_t> open_rows = to_rows(k, open), region = to_rows(k, seed);
       for (size_t r = 0; r < region.size(); ++r) region[r] &= open_rows[r];
@@ -111,9 +115,10 @@ TEST(VoxelRows, FloodEqualsAVoxelByVoxelFlood) {
 }
 
 TEST(VoxelRows, FloodFollowsAMazeThatTurnsBackEveryRow) {
-  // A serpentine corridor in every other layer: rows along x joined alternately at their two ends,
-  // so the flood reverses direction at every row; the layers joined at one corner, alternately
-  // the first and the last row's. A sweep in one direction advances it by one row only.
+  // A serpentine corridor in every other layer: rows along x joined alternately at their two ends
+  // (a row fill crosses a whole row at once), the layers joined at one corner, alternately the
+  // first and the last row's: the flood needs several pairs of sweeps (2 at k = 4, 7 at 24, 17 at
+  // 64). The staircase in PiecesAreLabelledAsByAVoxelByVoxelFlood needs one pair per two steps.
   for (int k : {4, 24, 64}) {
     const int64_t k3 = int64_t(k) * k * k;
     std::vector<uint8_t> open(size_t(k3), 0);
@@ -154,5 +159,79 @@ TEST(VoxelRows, DilateReachesTheSixNeighboursWithinTheCell) {
           if (c[a] + s >= 0 && c[a] + s < k) expect[size_t(vi + s * step[a])] = 1;
     }
     EXPECT_EQ(to_voxels(k, out), expect) << k;
+  }
+}
+
+namespace {
+
+// The reference labelling: a stack flood from each unlabelled material voxel in voxel order (the
+// cell splitter's before bit rows).
+int32_t label_voxels(std::vector<uint8_t>& v, int k, std::vector<int32_t>& size) {
+  const int64_t k3 = int64_t(k) * k * k;
+  int32_t np = 0;
+  std::vector<int64_t> todo;
+  for (int64_t start = 0; start < k3; ++start) {
+    if (v[size_t(start)] >= 2) continue;
+    const uint8_t label = uint8_t(3 + std::min(np, 252));
+    ++np;
+    if (size.size() < 253) size.push_back(0);
+    v[size_t(start)] = label;
+    todo.push_back(start);
+    while (!todo.empty()) {
+      const int64_t vi = todo.back();
+      todo.pop_back();
+      ++size[label - 3];
+      const int64_t c[3] = {vi % k, (vi / k) % k, vi / (int64_t(k) * k)};
+      const int64_t step[3] = {1, k, int64_t(k) * k};
+      for (int a = 0; a < 3; ++a)
+        for (int s : {-1, 1}) {
+          if (c[a] + s < 0 || c[a] + s >= k) continue;
+          const int64_t ni = vi + s * step[a];
+          if (v[size_t(ni)] < 2) {
+            v[size_t(ni)] = label;
+            todo.push_back(ni);
+          }
+        }
+    }
+  }
+  return np;
+}
+
+}  // namespace
+
+TEST(VoxelRows, PiecesAreLabelledAsByAVoxelByVoxelFlood) {
+  // Material (0 enclosed, 1 surface) among air (2) at densities from isolated voxels (hundreds of
+  // pieces: the labels past 253 merge) to one piece, and a staircase that turns every row.
+  std::mt19937 rng(17);
+  int merged = 0;
+  for (int k : {1, 4, 13, 24, 64})
+    for (double density : {0.02, 0.15, 0.3116, 0.6, 1.0}) {
+      const int64_t k3 = int64_t(k) * k * k;
+      std::vector<uint8_t> v(static_cast<size_t>(k3));
+      std::bernoulli_distribution material(density);
+      for (auto& x : v) x = material(rng) ? uint8_t(rng() % 2) : uint8_t(2);
+      std::vector<uint8_t> expect = v;
+      std::vector<int32_t> size, expect_size;
+      const int32_t np = label_pieces(v.data(), k, size), expect_np = label_voxels(expect, k, expect_size);
+      EXPECT_EQ(np, expect_np) << k << " " << density;
+      EXPECT_EQ(size, expect_size) << k << " " << density;
+      EXPECT_EQ(v, expect) << k << " " << density;
+      merged += np > 253;
+    }
+  EXPECT_GE(merged, 3);        // some cells had more pieces than labels
+  for (int k : {8, 24, 64}) {  // a staircase: up one row (y), back one layer (z), ...
+    const int64_t k3 = int64_t(k) * k * k;
+    std::vector<uint8_t> v(static_cast<size_t>(k3), 2);
+    int j = 0, l = k - 1;
+    for (int step = 0; j < k && l >= 0; ++step) {
+      v[size_t(k / 2 + k * (j + int64_t(k) * l))] = 0;
+      (step % 2 ? l : j) += step % 2 ? -1 : 1;
+    }
+    std::vector<uint8_t> expect = v;
+    std::vector<int32_t> size, expect_size;
+    EXPECT_EQ(label_pieces(v.data(), k, size), label_voxels(expect, k, expect_size)) << k;
+    EXPECT_EQ(size, expect_size) << k;
+    EXPECT_EQ(size.size(), 1u) << k;
+    EXPECT_EQ(v, expect) << k;
   }
 }

@@ -14,6 +14,16 @@ using namespace larap;
 
 namespace {
 
+// Calls visit(ni) for each 6-neighbour ni of voxel vi within a k^3 grid.
+template <class F>
+void each_neighbour(int k, int64_t vi, F&& visit) {
+  const int64_t c[3] = {vi % k, (vi / k) % k, vi / (int64_t(k) * k)};
+  const int64_t step[3] = {1, k, int64_t(k) * k};
+  for (int a = 0; a < 3; ++a)
+    for (int s : {-1, 1})
+      if (c[a] + s >= 0 && c[a] + s < k) visit(vi + s * step[a]);
+}
+
 // The reference: a stack flood over the open voxels, 6-connected, from the seed voxels.
 std::vector<uint8_t> flood_voxels(int k, const std::vector<uint8_t>& open, const std::vector<uint8_t>& seed) {
   const int64_t k3 = int64_t(k) * k * k;
@@ -27,17 +37,12 @@ std::vector<uint8_t> flood_voxels(int k, const std::vector<uint8_t>& open, const
   while (!stack.empty()) {
     const int64_t vi = stack.back();
     stack.pop_back();
-    const int64_t c[3] = {vi % k, (vi / k) % k, vi / (int64_t(k) * k)};
-    const int64_t step[3] = {1, k, int64_t(k) * k};
-    for (int a = 0; a < 3; ++a)
-      for (int s : {-1, 1}) {
-        if (c[a] + s < 0 || c[a] + s >= k) continue;
-        const int64_t ni = vi + s * step[a];
-        if (open[size_t(ni)] && !in[size_t(ni)]) {
-          in[size_t(ni)] = 1;
-          stack.push_back(ni);
-        }
+    each_neighbour(k, vi, [&](int64_t ni) {
+      if (open[size_t(ni)] && !in[size_t(ni)]) {
+        in[size_t(ni)] = 1;
+        stack.push_back(ni);
       }
+    });
   }
   return in;
 }
@@ -152,11 +157,7 @@ TEST(VoxelRows, DilateReachesTheSixNeighboursWithinTheCell) {
     for (int64_t vi = 0; vi < k3; ++vi) {
       if (!v[size_t(vi)]) continue;
       expect[size_t(vi)] = 1;
-      const int64_t c[3] = {vi % k, (vi / k) % k, vi / (int64_t(k) * k)};
-      const int64_t step[3] = {1, k, int64_t(k) * k};
-      for (int a = 0; a < 3; ++a)
-        for (int s : {-1, 1})
-          if (c[a] + s >= 0 && c[a] + s < k) expect[size_t(vi + s * step[a])] = 1;
+      each_neighbour(k, vi, [&](int64_t ni) { expect[size_t(ni)] = 1; });
     }
     EXPECT_EQ(to_voxels(k, out), expect) << k;
   }
@@ -181,17 +182,12 @@ int32_t label_voxels(std::vector<uint8_t>& v, int k, std::vector<int32_t>& size)
       const int64_t vi = todo.back();
       todo.pop_back();
       ++size[label - 3];
-      const int64_t c[3] = {vi % k, (vi / k) % k, vi / (int64_t(k) * k)};
-      const int64_t step[3] = {1, k, int64_t(k) * k};
-      for (int a = 0; a < 3; ++a)
-        for (int s : {-1, 1}) {
-          if (c[a] + s < 0 || c[a] + s >= k) continue;
-          const int64_t ni = vi + s * step[a];
-          if (v[size_t(ni)] < 2) {
-            v[size_t(ni)] = label;
-            todo.push_back(ni);
-          }
+      each_neighbour(k, vi, [&](int64_t ni) {
+        if (v[size_t(ni)] < 2) {
+          v[size_t(ni)] = label;
+          todo.push_back(ni);
         }
+      });
     }
   }
   return np;

@@ -12,7 +12,12 @@
 // grown voxel's corner). Per column of voxels along the axis the normal is most aligned
 // with, the axes that do not vary along it cull the whole column, and the triangle's plane bounds
 // the voxels tested to the slab it crosses (a voxel to spare each side), so a large triangle
-// costs the columns of its bounding box, not its volume.
+// costs the columns it covers, not its volume. Per row of columns, those axes bound the columns
+// looked at (a column to spare each side), and only the columns from either end up to the first
+// whose axes all overlap beyond tol are judged: the columns between are too, by convexity. A
+// triangle in a plane across the normal's axis (a grid-aligned face) is decided along that axis
+// in the exact test's own arithmetic, so the voxels beside a voxel plane it lies on need no exact
+// test.
 #pragma once
 #include <Eigen/Core>
 #include <algorithm>
@@ -112,8 +117,10 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
   int d = 0;
   n.cwiseAbs().maxCoeff(&d);
   const int u = (d + 1) % 3, w = (d + 2) % 3;
-  Axis column_axes[5], voxel_axes[8];  // constant along d / varying along d
-  int nc = 0, nv = 0;
+  // Constant along d / varying along d; voxel_axes[0] is the normal, judged first: the voxels a
+  // column holds beyond the plane's slab are separated by it.
+  Axis column_axes[5], voxel_axes[8];
+  int nc = 0, nv = 1;
   for (int q = 0; q < 3; ++q) {
     Eigen::Vector3d unit = Eigen::Vector3d::Zero();
     unit[q] = 1.0;
@@ -130,57 +137,113 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
   }
   Axis normal = make_axis(n, p, half, T * (4.0 * D * D * emax + n.cwiseAbs().sum() * L));
   if (n.squaredNorm() < kTiny) normal.zero = 2;
-  voxel_axes[nv++] = normal;
+  voxel_axes[0] = normal;
   // One voxel along d moves the normal's projection by |n_d| hv: the slab bounds the voxels only
   // when that is well beyond tol.
   const bool slab = finite && !normal.zero && std::abs(n[d]) * hv > 2.0 * normal.tol;
 
+  // A triangle in a plane across d (its vertices' d coordinates equal): its edges have no d
+  // component, so every axis the exact test tries is a column axis or parallel to d, and the
+  // latter separate nothing that the box's own axis d does not (they project the vertices, all at
+  // one d, as that axis does, scaled, and rounding is monotone). Axis d is judged in the exact
+  // test's own arithmetic, so its verdict is the exact test's even on a voxel plane, where a
+  // grid-aligned face lies and tol leaves every voxel beside it undecided.
+  const bool flat = finite && a[d] == b[d] && b[d] == c[d];
+  auto flat_overlaps_d = [&](const int* x) {  // the exact test's axis d: |a_d - centre_d| <= half
+    const double v = a[d] - (corner[d] + hv * (x[d] + 0.5));
+    return !(v > half || v < -half);
+  };
   int x[3];
-  for (x[w] = v0[w]; x[w] <= v1[w]; ++x[w])
-    for (x[u] = v0[u]; x[u] <= v1[u]; ++x[u]) {
-      x[d] = 0;
-      const Eigen::Vector3d c0 = centre_of(x);
-      bool sure = finite;  // every axis decided so far
-      bool out = false;
-      for (const Axis& ax : column_axes) {
-        const int j = judge(ax, c0);
-        out = out || j > 0;
-        sure = sure && j < 0;
-      }
-      if (out && finite) continue;
-      int x0 = v0[d], x1 = v1[d];
-      if (slab) {
-        // |n . (p - centre)| <= r where the plane crosses the voxel's box.
-        const double s = normal.lo - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
-        const double s1 = normal.hi - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
-        double t0 = (s - normal.r) / (hv * n[d]) - 0.5, t1 = (s1 + normal.r) / (hv * n[d]) - 0.5;
-        if (t0 > t1) std::swap(t0, t1);
-        x0 = std::max(x0, clamped_floor(t0, -2, k + 1) - 1);
-        x1 = std::min(x1, -clamped_floor(-t1, -(k + 1), 2) + 1);  // ceil(t1) + 1
-      }
-      for (x[d] = x0; x[d] <= x1; ++x[d]) {
-        const int64_t vi = x[0] + int64_t(k) * (x[1] + int64_t(k) * x[2]);
-        if (skip(vi)) continue;
-        if (!sure) {
-          exact(x, vi);
-          continue;
-        }
-        const Eigen::Vector3d cv = centre_of(x);
-        int verdict = -1;  // -1 overlap, 0 undecided, 1 separated
-        for (int q = 0; q < nv; ++q) {
-          const int j = judge(voxel_axes[q], cv);
-          if (j > 0) {
-            verdict = 1;
-            break;
-          }
-          if (j == 0) verdict = 0;
-        }
-        if (verdict < 0)
-          hit(vi);
-        else if (verdict == 0)
-          exact(x, vi);
-      }
+  // The voxels of column (x[u], x[w]) along d; sure: every column axis overlaps beyond tol.
+  auto column = [&](bool sure) {
+    int x0 = v0[d], x1 = v1[d];
+    if (slab) {
+      // |n . (p - centre)| <= r where the plane crosses the voxel's box.
+      const double s = normal.lo - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
+      const double s1 = normal.hi - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
+      double t0 = (s - normal.r) / (hv * n[d]) - 0.5, t1 = (s1 + normal.r) / (hv * n[d]) - 0.5;
+      if (t0 > t1) std::swap(t0, t1);
+      x0 = std::max(x0, clamped_floor(t0, -2, k + 1) - 1);
+      x1 = std::min(x1, -clamped_floor(-t1, -(k + 1), 2) + 1);  // ceil(t1) + 1
     }
+    for (x[d] = x0; x[d] <= x1; ++x[d]) {
+      const int64_t vi = x[0] + int64_t(k) * (x[1] + int64_t(k) * x[2]);
+      if (skip(vi)) continue;
+      if (flat) {
+        if (!flat_overlaps_d(x)) continue;
+        if (sure)
+          hit(vi);
+        else
+          exact(x, vi);
+        continue;
+      }
+      if (!sure) {
+        exact(x, vi);
+        continue;
+      }
+      const Eigen::Vector3d cv = centre_of(x);
+      int verdict = -1;  // -1 overlap, 0 undecided, 1 separated
+      for (int q = 0; q < nv; ++q) {
+        const int j = judge(voxel_axes[q], cv);
+        if (j > 0) {
+          verdict = 1;
+          break;
+        }
+        if (j == 0) verdict = 0;
+      }
+      if (verdict < 0)
+        hit(vi);
+      else if (verdict == 0)
+        exact(x, vi);
+    }
+  };
+  // The column axes at column (x[u], x[w]): +1 separated (a finite triangle misses the column),
+  // -1 overlapping beyond tol (sure), 0 otherwise.
+  auto judge_column = [&]() {
+    x[d] = 0;
+    const Eigen::Vector3d c0 = centre_of(x);
+    bool sure = finite, out = false;
+    for (const Axis& ax : column_axes) {
+      const int j = judge(ax, c0);
+      out = out || j > 0;
+      sure = sure && j < 0;
+    }
+    return out && finite ? 1 : sure ? -1 : 0;
+  };
+  for (x[w] = v0[w]; x[w] <= v1[w]; ++x[w]) {
+    // Along a row of columns (x[u] varying) a column axis's projection moves by m_u hv per column:
+    // where that is well beyond tol, the columns more than one past where the axis starts to
+    // separate are separated (as the slab bounds the voxels above), and are not looked at.
+    int p0 = v0[u], p1 = v1[u];
+    if (finite)
+      for (const Axis& ax : column_axes) {
+        if (ax.zero || !(std::abs(ax.m[u]) * hv > 2.0 * ax.tol)) continue;
+        const double base = ax.m[w] * hv * (x[w] + 0.5);
+        double t0 = (ax.lo - ax.r - base) / (hv * ax.m[u]) - 0.5,
+               t1 = (ax.hi + ax.r - base) / (hv * ax.m[u]) - 0.5;
+        if (t0 > t1) std::swap(t0, t1);
+        p0 = std::max(p0, clamped_floor(t0, -2, k + 1) - 1);
+        p1 = std::min(p1, -clamped_floor(-t1, -(k + 1), 2) + 1);
+      }
+    // A column axis's margin is convex along the row (the larger of two affine functions): between
+    // two sure columns every column axis overlaps by tol less the rounding, far inside what the
+    // exact test calls an overlap, so the columns between two sure ones are sure unjudged. From
+    // each end, columns are judged until a sure one.
+    int lo = p0, hi = p1;
+    for (; lo <= hi; ++lo) {
+      x[u] = lo;
+      const int j = judge_column();
+      if (j <= 0) column(j < 0);
+      if (j < 0) break;
+    }
+    for (; hi > lo; --hi) {
+      x[u] = hi;
+      const int j = judge_column();
+      if (j <= 0) column(j < 0);
+      if (j < 0) break;
+    }
+    for (x[u] = lo + 1; x[u] < hi; ++x[u]) column(true);
+  }
 }
 
 }  // namespace larap

@@ -191,3 +191,60 @@ TEST(VoxelHits, FacesOnVoxelPlanesHitBothSides) {
       EXPECT_EQ(layers, want) << "axis " << axis << " plane " << plane;
     }
 }
+
+// Triangles in a plane across an axis (their vertices' coordinate along it equal), the faces of
+// grid-aligned models: on a voxel plane, within 1e-17 to 1e-5 voxels of one, anywhere between,
+// near zero and far from it, small and larger than the cell, every axis, grown and plain voxels.
+// The voxels beside such a plane are decided in the exact test's own arithmetic (voxel_hits.h).
+TEST(VoxelHits, FlatTrianglesOnAndNearVoxelPlanes) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  Tally tally;
+  int on_plane_hits = 0;
+  for (int k : {5, 24}) {
+    for (double grow : {0.0, kContact}) {
+      for (int r = 0; r < 600; ++r) {
+        const double h = r % 5 == 0 ? 0.5 : 0.5 + unit(rng);
+        const double hv = h / k;
+        Eigen::Vector3d corner(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5);
+        if (r % 7 == 3) corner += Eigen::Vector3d::Constant(r % 2 ? 1e4 : 3e6);
+        if (r % 5 == 0) corner = hv * Eigen::Vector3d(std::round(corner.x() / hv), 3.0, -2.0);
+        const int d = r % 3, u = (d + 1) % 3, w = (d + 2) % 3;
+        // The plane: a voxel boundary (or the cell's face), moved by nothing, a tiny amount or a
+        // random fraction of a voxel.
+        const int layer = int(unit(rng) * (k + 1));
+        double at = corner[d] + hv * layer;
+        switch (r % 4) {
+          case 1:
+            at += hv * std::pow(10.0, -5.0 - 12.0 * unit(rng)) * (r & 8 ? 1 : -1);
+            break;
+          case 2:
+            at = corner[d] + hv * (k + 2) * unit(rng) - hv;
+            break;
+          case 3:
+            at = std::nextafter(at, r & 16 ? 1e300 : -1e300);
+            break;
+          default:
+            break;
+        }
+        const double size = h * (r % 3 == 2 ? 2.5 : 0.6);
+        auto vertex = [&] {
+          Eigen::Vector3d p;
+          p[d] = at;
+          p[u] = corner[u] + h * 0.5 + size * (unit(rng) - 0.5);
+          p[w] = corner[w] + h * 0.5 + size * (unit(rng) - 0.5);
+          if (r % 6 == 1) {  // on the voxel lattice across the plane too
+            p[u] = corner[u] + hv * std::round((p[u] - corner[u]) / hv);
+            p[w] = corner[w] + hv * std::round((p[w] - corner[w]) / hv);
+          }
+          return p;
+        };
+        const Eigen::Vector3d a = vertex(), b = vertex(), c = vertex();
+        expect_same(corner, hv, k, a, b, c, grow, tally, "flat");
+        on_plane_hits += r % 4 == 0 && !every_voxel(corner, hv, k, a, b, c, grow).empty();
+      }
+    }
+  }
+  EXPECT_GT(tally.with_hits, tally.cases / 3);
+  EXPECT_GT(on_plane_hits, 100);
+}

@@ -225,11 +225,11 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
-  // (a few rows of bits, or the part sets' offsets, last-part table and union-find: 16 k^3), or before
-  // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
-  // bookkeeping: 1 KiB per analysed cell (neighbours, seeds, piece sizes, links twice over; the
-  // rows' tables alive with the voxels, at most 3 rows per cell: about 100 bytes), 32
-  // bytes per vertex in one (its piece, found and returned).
+  // (a few rows of bits; or the part sets' masks and the union-find, 12 k^3; or their offsets,
+  // last-part table and union-find: 16 k^3), or before that, of the row it is finding crossings
+  // for (the largest rows), whichever is more; and the bookkeeping: 1 KiB per analysed cell (neighbours,
+  // seeds, piece sizes, links twice over; the rows' tables alive with the voxels, at most 3 rows per cell:
+  // about 100 bytes), 32 bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
   const std::vector<int64_t> held = parallel_select(V.rows(), [&](int64_t vtx) {  // in analysed cells
     const int32_t s = surf_of[vertex_cells[vtx]];
@@ -485,14 +485,14 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       auto same = [&](int32_t i, const int32_t* p0, const int32_t* p1) {
         return fs.offsets[i + 1] - fs.offsets[i] == p1 - p0 && std::equal(p0, p1, fs.parts.begin() + fs.offsets[i]);
       };
+      std::vector<int32_t> scratch;
       for_face_voxels([&](int64_t idx, int64_t vi) {
         int32_t& key = keys[size_t(idx)];
         if (v[vi] == 2) key = kAir;
         else if (v[vi] == 0) key = kEnclosed;
-        else if (sets.end(vi) - sets.begin(vi) == 1) key = *sets.begin(vi);
+        else if (const auto [p0, p1] = sets.of(vi, scratch); p1 - p0 == 1)
+          key = *p0;
         else {
-          const int32_t* p0 = sets.begin(vi);
-          const int32_t* p1 = sets.end(vi);
           const int32_t n = int32_t(fs.offsets.size() - 1);
           int32_t i = last >= 0 && same(last, p0, p1) ? last : 0;
           while (i < n && !same(i, p0, p1)) ++i;

@@ -153,33 +153,45 @@ inline void dilate_rows(int k, const uint64_t* rows, uint64_t* out) {
   }
 }
 
-// Labels the 6-connected pieces of a cell's material (v[vi] < 2) in the order of each piece's
-// first voxel: v[vi] = 3 + piece, at most 253 pieces (the rest merge into the last label, 255);
-// size[p]: the material voxels of piece p. Returns the number of pieces found. Each piece is
-// grown, counted, written and cleared over its own rows only, so that many small pieces cost
-// about their size each, not the cell's.
-inline int32_t label_pieces(uint8_t* v, int k, std::vector<int32_t>& size) {
+// Calls visit(piece, span) for each 6-connected piece of the voxels of `left` (k^2 rows, emptied),
+// in the order of each piece's first voxel: the piece's bits are piece[span.first..span.last]
+// (rows of k^2, zero elsewhere, cleared after the call). Each piece is grown and cleared over its
+// own rows only, so that many small pieces cost about their size each, not the cell's.
+template <class Visit>
+void for_each_piece(int k, uint64_t* left, Visit&& visit) {
   const int rows = k * k;
-  std::vector<uint64_t> left(static_cast<size_t>(rows)), piece(static_cast<size_t>(rows), 0);
-  rows_below(v, k, 2, left.data());
-  int32_t np = 0;
+  std::vector<uint64_t> piece(static_cast<size_t>(rows), 0);
   for (int r0 = 0; r0 < rows; ++r0)
-    while (left[size_t(r0)]) {  // the lowest bit of the first row left starts the next piece
-      const uint8_t label = uint8_t(3 + std::min(np, 252));
-      ++np;
-      if (size.size() < 253) size.push_back(0);
-      piece[size_t(r0)] = left[size_t(r0)] & (~left[size_t(r0)] + 1);
-      const RowSpan span = flood_rows(k, left.data(), piece.data(), RowSpan{r0, r0});
-      int64_t n = 0;
-      for (int r = span.first; r <= span.last; ++r) {  // no row before r0 has material left
-        const uint64_t m = piece[size_t(r)];
-        n += __builtin_popcountll(m);
-        left[size_t(r)] &= ~m;
-        for (uint64_t bits = m; bits; bits &= bits - 1) v[int64_t(r) * k + __builtin_ctzll(bits)] = label;
+    while (left[r0]) {  // the lowest bit of the first row left starts the next piece
+      piece[size_t(r0)] = left[r0] & (~left[r0] + 1);
+      const RowSpan span = flood_rows(k, left, piece.data(), RowSpan{r0, r0});
+      visit(static_cast<const uint64_t*>(piece.data()), span);
+      for (int r = span.first; r <= span.last; ++r) {  // no row before r0 has anything left
+        left[r] &= ~piece[size_t(r)];
         piece[size_t(r)] = 0;
       }
-      size[label - 3] += int32_t(n);
     }
+}
+
+// Labels the 6-connected pieces of a cell's material (v[vi] < 2) in the order of each piece's
+// first voxel: v[vi] = 3 + piece, at most 253 pieces (the rest merge into the last label, 255);
+// size[p]: the material voxels of piece p. Returns the number of pieces found.
+inline int32_t label_pieces(uint8_t* v, int k, std::vector<int32_t>& size) {
+  std::vector<uint64_t> left(static_cast<size_t>(k) * k);
+  rows_below(v, k, 2, left.data());
+  int32_t np = 0;
+  for_each_piece(k, left.data(), [&](const uint64_t* piece, RowSpan span) {
+    const uint8_t label = uint8_t(3 + std::min(np, 252));
+    ++np;
+    if (size.size() < 253) size.push_back(0);
+    int64_t n = 0;
+    for (int r = span.first; r <= span.last; ++r) {
+      const uint64_t m = piece[r];
+      n += __builtin_popcountll(m);
+      for (uint64_t bits = m; bits; bits &= bits - 1) v[int64_t(r) * k + __builtin_ctzll(bits)] = label;
+    }
+    size[label - 3] += int32_t(n);
+  });
   return np;
 }
 

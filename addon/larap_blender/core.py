@@ -32,7 +32,7 @@ from .progress import Progress, progress as _progress
 from .targets import (flat, follow_bone_renames, gather, handle_local_transform, meshes_driven_by, membership,
                       quiet_retarget, record_rest, retarget_keep_pose, target_alive, target_matrix,
                       target_names, target_signature)
-from .transaction import preserve_on_error
+from .transaction import key_positions as snapshot_key, preserve_on_error
 
 __all__ = [
     # this module's operations
@@ -74,16 +74,17 @@ def bind(obj, *, keep_pose=True, progress=None):
     check_object(obj, bind=True)
     p = _progress(progress, 3)
     with p, preserve_on_error(obj) as snap:
-        return _bind(obj, keep_pose, p, snap["rest"])
+        return _bind(obj, keep_pose, p, snap)
 
 
-def _bind(obj, keep_pose, p, rest):
-    """Bind from the rest positions ``rest`` (read by the caller's snapshot, nothing changed since)."""
+def _bind(obj, keep_pose, p, snap):
+    """Bind from the positions the caller's snapshot ``snap`` read (the rest shape, the keys),
+    nothing changed since: none of them is read again."""
     s = obj.larap
     me = obj.data
     rebind = s.bound and keep_pose
     p.step(0)
-    rt = build_runtime(obj, rest)  # the long part: the lattice and its factorisation
+    rt = build_runtime(obj, snap["rest"])  # the long part: the lattice and its factorisation
     p.step(1)
     # Stored explicitly (an unset property is not saved): a later default leaves this bind alone.
     s.gamma = upgrade_settings(s)
@@ -97,8 +98,9 @@ def _bind(obj, keep_pose, p, rest):
             if rebind and h.has_rest:
                 if h.rest_target is None:  # bound before rest targets were recorded: it is this target's
                     h.rest_target, h.rest_subtarget = h.target, h.subtarget
-            elif rebind:
-                if not retarget_keep_pose(obj, h, membership(obj, rt, rt.rest).get(h.vertex_group)):
+            elif rebind:  # (the fit to the pose key, pose_fit, reads neither the rest nor the key)
+                ids = membership(obj, rt, rt.rest).get(h.vertex_group)
+                if not retarget_keep_pose(obj, h, ids, rt.rest, snapshot_key(snap, s.shape_key)):
                     h.has_rest = False
             else:
                 record_rest(h)
@@ -111,9 +113,13 @@ def _bind(obj, keep_pose, p, rest):
     s.bound = True
     p.step(2)
     # The handle groups, read with the rest shape build_runtime read (the Basis made since is a copy
-    # of it): the solve finds them read.
+    # of it): the solve finds them read. Its fast validation passes no rest to them, which would
+    # then read the Basis again.
     membership(obj, rt, rt.rest)
-    result = solve(obj, weights="final", validate="fast")
+    # The pose key as the snapshot read it (None when bind has just made it): the check for hand
+    # edits before the solve writes it does not read it again.
+    kb = key_edits.pose_key(obj)
+    result = solve(obj, weights="final", validate="fast", posed=snapshot_key(snap, kb.name) if kb else None)
     p.step(3)
     return result
 
@@ -317,7 +323,7 @@ def add_handle(obj, *, vertex_group="", from_selection=False, target=None, subta
         h.has_rest = True
         h.rest_target, h.rest_subtarget = target, ""
     elif s.bound:
-        retarget_keep_pose(obj, h, idx)  # a posed mesh does not jump: the target takes over from here
+        retarget_keep_pose(obj, h, idx, mesh_pts)  # a posed mesh does not jump: the target takes over
     else:
         record_rest(h)
     s.active_handle = len(s.handles) - 1

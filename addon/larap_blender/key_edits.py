@@ -52,16 +52,16 @@ def put(obj, value):
     set_id_string(obj, RECORD_PROP, value)
 
 
-def edited(obj, kb):
+def edited(obj, kb, co=None):
     """The pose key ``kb`` holds positions LARAP did not write. None when there is no record to
-    compare with."""
+    compare with. ``co``: its positions when the caller has just read them (not read again)."""
     stored = get(obj)
     if not stored or kb is None:
         return None
     n = len(obj.data.vertices)
     if len(kb.data) != n:
         return False
-    return _crc(block_positions(kb, n)) != stored.partition("/")[0]
+    return _crc(block_positions(kb, n) if co is None else co) != stored.partition("/")[0]
 
 
 def _basis_changed(obj):
@@ -82,15 +82,18 @@ def pose_key(obj):
     return kb
 
 
-def keep(obj, kb=None):
+def keep(obj, kb=None, co=None):
     """Before LARAP writes or removes its pose key (``kb``, default :func:`pose_key`): copy hand
     edits (see :func:`edited`) into a new key "<name> edits" at value 0 and return its name (None:
-    nothing to keep). The record is dropped, so the same edits are kept once."""
+    nothing to keep). The record is dropped, so the same edits are kept once. ``co``: that key's
+    positions when the caller has just read them, nothing written to it since (not read again)."""
     kb = kb if kb is not None else pose_key(obj)
-    if not edited(obj, kb):
+    if not edited(obj, kb, co):
         return None
     basis = _basis_changed(obj)
-    copy = add_key_copy(obj, kb.name + EDITS_SUFFIX, block_positions(kb, len(obj.data.vertices)))
+    if co is None:
+        co = block_positions(kb, len(obj.data.vertices))
+    copy = add_key_copy(obj, kb.name + EDITS_SUFFIX, co)
     put(obj, "")
     _KEPT.append((kb.name, copy.name, basis))
     del _KEPT[:-20]  # Live's copies are told by the panel; operators take theirs (take_messages)

@@ -37,6 +37,13 @@ def _get_ids(collection, attr, count, width=1):
     return _get(collection, attr, count, np.uint32, width).view(np.int32)
 
 
+def read_only(a):
+    """``a``, marked read only (an array several holders share: the runtime's rest shape, a
+    snapshot's positions); a write to it raises instead of changing what the others see."""
+    a.flags.writeable = False
+    return a
+
+
 # ----------------------------------------------------------------------------------------------
 # Positions (read)
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from . import scene_index
 from .errors import TopologyChanged, engine_errors, require_engine
-from .mesh_data import array_hash, loose_edge_count, polygons, rest_positions, topology_arrays, topology_hash
+from .mesh_data import (array_hash, loose_edge_count, polygons, read_only, rest_positions, topology_arrays,
+                        topology_hash)
 from .props import upgrade_settings
 from .targets import target_signature
 
@@ -32,7 +33,7 @@ class Runtime:
         self.counts = None  # (verts, polys, loops, edges)
         self.loose_edges = 0  # edges on no face (the GPU preview, which draws faces, steps aside)
         self.topology = ""
-        self.rest = None
+        self.rest = None  # (n,3) float32 rest positions the engine was built on, read only (_refresh)
         self.rest_hash = ""
         self.out = None
         self.membership = {}  # vertex group -> sorted int64 indices (weight > 0)
@@ -267,12 +268,12 @@ def _new_runtime(obj, rest, faces):
 def _refresh(obj, key, arrays, topo, rebuild, rest=None):
     """Fill the object's runtime from its rest shape as it is now (``rest``: its positions, when
     the caller has just read them); a new engine when ``rebuild``, or when the settings, rest
-    positions or topology differ from what the cached one was built on."""
+    positions or topology differ from what the cached one was built on. ``rt.rest`` is read only
+    (the caller's array, given one: a snapshot's, which the solves read too)."""
     s = obj.larap
     me = obj.data
     sig = _settings_sig(s)
-    if rest is None:
-        rest = rest_positions(obj)
+    rest = read_only(rest_positions(obj) if rest is None else rest)
     rest_hash = array_hash(rest)
     rt = _RUNTIMES.get(key)
     if (rebuild or rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash

@@ -94,7 +94,7 @@ def _weights_name(s, which):
 
 
 def solve(obj, *, weights="final", validate="full", overrides=None, write=True, lattice_only=False, tol=None,
-          max_iterations=None, from_rest=True):
+          max_iterations=None, from_rest=True, posed=None):
     """One solve from the current target transforms; writes the pose key. Returns SolveResult.
 
     ``weights``: "final", "interactive" or a weights name; ``validate``: see ensure_runtime;
@@ -106,7 +106,11 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     a farm chunk's later frames), converges until the energy changes by less than ``tol``
     (default FINAL_TOLERANCE) relative in at most ``max_iterations`` flip-flops (default
     max(30, 10 x the object's iterations)), writes the pose key, records pose_signature() in the
-    object, and ends the object's preview (the mesh now holds the pose)."""
+    object, and ends the object's preview (the mesh now holds the pose).
+
+    ``posed``: the positions of the pose key LARAP owns (``key_edits.pose_key``) when the caller
+    has just read them, nothing written to it since: the check for hand edits before the write
+    (``key_edits.keep``) does not read the key again."""
     check_object(obj, need_bound=True)
     s = obj.larap
     t0 = time.perf_counter()
@@ -155,7 +159,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     if lattice_only:
         rt.needs_catchup = True
     elif write:
-        kept = key_edits.keep(obj)
+        kept = key_edits.keep(obj, co=posed)
         if kept:
             warnings.insert(0, key_edits.describe(kept))
             rt.kept_edits = kept

@@ -198,28 +198,35 @@ def _fit(p, q):
     return m
 
 
-def pose_fit(obj, handle, ids=None):
+def pose_fit(obj, handle, ids=None, rest=None, posed=None):
     """World motion (Matrix) that best carries the handle's vertices from rest to where the pose
     key shows them now; None without a pose key or vertices. ``ids``: the group's vertex ids
-    (read from the vertex group when not given)."""
+    (read from the vertex group when not given). ``rest``, ``posed``: the rest positions
+    (``mesh_data.rest_positions``) and the pose key's (``mesh_data.key_positions`` of
+    ``shape_key``) when the caller has just read them, nothing changed since (not read again)."""
     from .mesh_data import key_positions, rest_positions
-    posed = key_positions(obj, obj.larap.shape_key)
+    if posed is None:
+        posed = key_positions(obj, obj.larap.shape_key)
     if posed is None or handle.vertex_group not in obj.vertex_groups:
         return None
     if ids is None:
-        ids = np.flatnonzero(vertex_group_weights(obj, [handle.vertex_group])[handle.vertex_group] > 0.0)
+        weights = vertex_group_weights(obj, [handle.vertex_group], rest)
+        ids = np.flatnonzero(weights[handle.vertex_group] > 0.0)
     if len(ids) == 0:
         return None
-    local = _fit(rest_positions(obj)[ids].astype(np.float64), posed[ids].astype(np.float64))
+    if rest is None:
+        rest = rest_positions(obj)
+    local = _fit(rest[ids].astype(np.float64), posed[ids].astype(np.float64))
     mw = obj.matrix_world
     return mw @ Matrix(local.tolist()) @ mw.inverted_safe()
 
 
-def retarget_keep_pose(obj, handle, ids=None):
+def retarget_keep_pose(obj, handle, ids=None, rest=None, posed=None):
     """The handle's target (or bone) was changed: record the new target's rest so the handle's
     vertices stay where they are now. The motion they made comes from the previous target (exact),
-    else from the pose key (a fit), else there is none (not posed). Returns True when a rest was
-    recorded; False when the handle cannot pose yet (no target, no bone picked)."""
+    else from the pose key (a fit: :func:`pose_fit`, which takes ``ids``, ``rest`` and ``posed``),
+    else there is none (not posed). Returns True when a rest was recorded; False when the handle
+    cannot pose yet (no target, no bone picked)."""
     t = handle.target
     if not target_alive(t):
         return False
@@ -232,7 +239,7 @@ def retarget_keep_pose(obj, handle, ids=None):
         return False  # e.g. an armature whose bone is not picked yet: wait for it
     motion = handle_motion(handle)
     if motion is None:
-        motion = pose_fit(obj, handle, ids)
+        motion = pose_fit(obj, handle, ids, rest, posed)
     record_rest(handle, motion=motion)
     return True
 

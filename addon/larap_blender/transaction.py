@@ -9,7 +9,7 @@ re-raises. Bind, Bake and Apply run inside it.
 import contextlib
 
 from .key_edits import RECORD_PROP
-from .mesh_data import block_positions, mesh_positions, set_mesh_positions, write_block
+from .mesh_data import block_positions, mesh_positions, read_only, set_mesh_positions, write_block
 from .props import id_string, set_id_string
 from .runtime import restore_entry, snapshot_entry
 from .solving import POSE_SIGNATURE_PROP
@@ -28,7 +28,8 @@ _POINT_FIELDS = _POINT_VECTORS + ("interpolation", "handle_left_type", "handle_r
 def _snapshot(obj):
     me = obj.data
     s = obj.larap
-    snap = {"mesh": mesh_positions(me),
+    # The positions are read only: the operation reads them too (the rest shape, the pose key).
+    snap = {"mesh": read_only(mesh_positions(me)),
             "settings": {f: getattr(s, f) for f in _SETTING_FIELDS},
             "handles": [(tuple(h.rest_matrix), h.has_rest, h.rest_target, h.rest_subtarget, h.subtarget,
                          tuple(h.bone_rest), h.has_bone_rest, h.bone_rest_armature) for h in s.handles],
@@ -42,7 +43,7 @@ def _snapshot(obj):
     if keys is not None:
         n = len(me.vertices)
         snap["use_relative"] = keys.use_relative
-        snap["keys"] = [(kb.name, block_positions(kb, n),
+        snap["keys"] = [(kb.name, read_only(block_positions(kb, n)),
                          kb.relative_key.name if kb.relative_key else "",
                          {f: getattr(kb, f) for f in _KEY_FIELDS}) for kb in keys.key_blocks]
         for kb, entry in zip(keys.key_blocks, snap["keys"]):
@@ -54,6 +55,15 @@ def _snapshot(obj):
                 {f: (tuple(getattr(kp, f)) if f in _POINT_VECTORS else getattr(kp, f))
                  for f in _POINT_FIELDS} for kp in fc.keyframe_points] for fc in ad.action.fcurves})
     return snap
+
+
+def key_positions(snap, name):
+    """The positions of the shape key ``name`` as the snapshot read them (read only), or None when
+    the object had no such key (as ``mesh_data.key_positions`` then)."""
+    for key_name, co, _rel, _props in snap["keys"] or ():
+        if key_name == name:
+            return co
+    return None
 
 
 def _restore(obj, snap):
@@ -127,7 +137,8 @@ def preserve_on_error(obj):
     """Snapshot the mesh positions, every shape key (data, settings, key animation), the LARAP
     settings and the runtime; restore them if the block raises (then re-raise). Yields the
     snapshot, whose ``"rest"`` is the rest positions as read now (``mesh_data.rest_positions``;
-    shared with the snapshot: read only)."""
+    shared with the snapshot: read only, as every position it holds; :func:`key_positions` gives
+    a key's)."""
     snap = _snapshot(obj)
     try:
         yield snap

@@ -17,7 +17,7 @@ from .mesh_data import write_key
 from .progress import progress as _progress
 from .runtime import runtime
 from .solving import current_pose, solve
-from .transaction import preserve_on_error
+from .transaction import key_positions as snapshot_key, preserve_on_error
 
 __all__ = ["bake_shape_key", "bake_animation", "AnimationBake", "LarapCancelled", "is_baked", "pose_key_hidden",
            "remove_bake"]
@@ -34,8 +34,9 @@ def bake_shape_key(obj, name="LARAP_pose", *, overwrite=False):
         raise LarapError("Choose a name other than %r" % name)
     if keys is not None and name in keys.key_blocks and not overwrite:
         raise LarapError("Shape key %r exists; choose another name or enable Overwrite" % name)
-    with preserve_on_error(obj):
-        kb = write_key(obj, name, current_pose(obj))
+    with preserve_on_error(obj) as snap:
+        # The pose key as the snapshot read it: current_pose and its solve do not read it again.
+        kb = write_key(obj, name, current_pose(obj, snapshot_key(snap, obj.larap.shape_key)))
         kb.value = 0.0
     return kb
 

@@ -358,12 +358,14 @@ def apply_pose(obj):
     along, keeping their offsets), remove the pose key and unbind. Destructive: the operator asks
     first. A failure leaves the object as it was."""
     check_object(obj, need_bound=True)
-    with preserve_on_error(obj):
-        return _apply_pose(obj)
+    with preserve_on_error(obj) as snap:
+        return _apply_pose(obj, snapshot_key(snap, obj.larap.shape_key))
 
 
-def _apply_pose(obj):
-    pose = current_pose(obj)
+def _apply_pose(obj, posed):
+    """Apply, ``posed`` being the pose key as the caller's snapshot read it (nothing written since):
+    current_pose and its solve do not read it again."""
+    pose = current_pose(obj, posed)
     rt = runtime(obj)
     me = obj.data
     s = obj.larap

@@ -177,17 +177,26 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count, kept)
 
 
-def current_pose(obj):
+def current_pose(obj, posed=None):
     """The pose to bake/apply: the pose key as it is when it holds the final pose of the current
     targets (key_up_to_date: what the artist sees once the moves pause), else the final solve of
     the current targets, written first (the catch-up), so Bake and Apply change nothing visible.
-    Returns (n,3) float32."""
+    Returns (n,3) float32: the pose key as read (``posed`` itself, given one), or a copy of the solve.
+
+    ``posed``: the pose key's positions (``mesh_data.key_positions`` of ``shape_key``) when the
+    caller has just read them, nothing written to it since (Bake and Apply: their snapshot's):
+    neither this nor the solve's check for hand edits reads the key again."""
     check_object(obj, need_bound=True)
     s = obj.larap
     rt = ensure_runtime(obj, "full")
     membership(obj, rt, rt.rest)  # the handle groups as they are now (a weight painted since the pose)
-    posed = key_positions(obj, s.shape_key)
+    if posed is None:
+        posed = key_positions(obj, s.shape_key)
     if posed is not None and not rt.needs_catchup and key_up_to_date(obj):
         return posed
-    solve(obj, weights="final", validate="fast")
+    # Nothing has written the key since it was read: the solve's check for hand edits, of the key
+    # LARAP owns, takes these positions when that key is the one read (the name it is posed into).
+    owned = key_edits.pose_key(obj)
+    read = posed if owned is not None and owned.name == s.shape_key else None
+    solve(obj, weights="final", validate="fast", posed=read)
     return runtime(obj).out.copy()

@@ -20,7 +20,6 @@ cache but never builds or drops a runtime.
 import contextlib
 import hashlib
 
-import bpy
 import numpy as np
 from mathutils import Matrix
 

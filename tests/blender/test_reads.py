@@ -1,9 +1,9 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-# What Bind, a solve, adding a handle and a rebind read from Blender: every read of positions goes
-# through mesh_data._get (as scripts/bench_addon_bind.py counts them), here told apart by what it
-# reads (the mesh, the Basis, the pose key, the mix that gives vertex-group weights). What an
-# operation has read once (its snapshot's rest shape and pose key) is not read again, and the
-# arrays it shares are read only.
+# What Bind, a solve, adding a handle, a rebind, Bake and Apply read from Blender: every read of
+# positions goes through mesh_data._get (as scripts/bench_addon_bind.py counts them), here told
+# apart by what it reads (the mesh, the Basis, the pose key, the mix that gives vertex-group
+# weights). What an operation has read once (its snapshot's rest shape and pose key) is not read
+# again, and the arrays it shares are read only.
 # Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_reads.py
 import collections
 import math
@@ -127,3 +127,71 @@ def test_the_rest_shape_and_the_snapshot_are_read_only(core, monkeypatch):
     assert bpy.ops.larap.solve() == {"FINISHED"}  # a full validation: the rest read again, read only again
     assert core.runtime(obj).rest is not snap["rest"] and not core.runtime(obj).rest.flags.writeable
     assert np.array_equal(core.runtime(obj).rest, rest.astype(np.float32))
+
+
+# Bake and Apply (current_pose): the pose key as their snapshot (transaction.preserve_on_error) read
+# it serves current_pose and, when the key is behind its targets, the solve's check for hand edits
+# before its write. The Basis is read again by current_pose's full validation (and by Apply's move
+# of the keys, and the removal of a Basis bind created); those reads are not the pose key's.
+STATES = ("up to date", "behind its targets", "behind, edited by hand")
+EDITS = 'key_blocks["LARAP edits"].data'
+
+
+def _state(core, state):
+    """The posed bar with its pose key in ``state``; returns (obj, rest, the final solve of the
+    targets as they are now, the pose key's positions now)."""
+    obj, rest, targets = posed(core)
+    if state != "up to date":
+        if state == "behind, edited by hand":
+            obj.data.shape_keys.key_blocks["LARAP"].data[5].co.z += 0.3
+        targets[1].location.z += 0.2
+        bpy.context.view_layer.update()
+    key = coords(obj, "LARAP").astype(np.float32)
+    core.solve(obj, weights="final", validate="full", write=False)  # what a final solve writes (deterministic)
+    expected = core.runtime(obj).out.copy()
+    assert np.array_equal(coords(obj, "LARAP"), key)  # (that solve wrote nothing)
+    assert np.array_equal(key, expected) == (state == "up to date")
+    activate(obj)
+    return obj, rest.astype(np.float32), expected, key
+
+
+@pytest.mark.parametrize("state", STATES)
+def test_bake_reads_the_pose_key_once(core, reads, state):
+    from larap_blender import solving
+    obj, rest, expected, key = _state(core, state)
+    reads.clear()
+    assert bpy.ops.larap.bake_shape_key(name="Baked") == {"FINISHED"}
+    edited = state == "behind, edited by hand"
+    # The snapshot: the mesh, the Basis, the pose key; the full validation: the Basis and the
+    # groups; a copy of hand edits: the Basis (whether it changed too).
+    assert dict(reads) == {MESH: 1, BASIS: 3 if edited else 2, POSE: 1, MIX: 1}
+    assert np.array_equal(coords(obj, "Baked"), expected)  # the final pose of the targets, bit for bit
+    assert np.array_equal(coords(obj, "LARAP"), expected) and solving.key_up_to_date(obj)
+    assert np.array_equal(coords(obj, "Basis"), rest)
+    names = [kb.name for kb in obj.data.shape_keys.key_blocks]
+    assert names == ["Basis", "LARAP"] + (["LARAP edits"] if edited else []) + ["Baked"]
+    if edited:  # the hand edits, kept as they were before the solve wrote the key
+        assert np.array_equal(coords(obj, "LARAP edits"), key)
+
+
+@pytest.mark.parametrize("state", STATES)
+def test_apply_reads_the_pose_key_once(core, reads, state):
+    obj, rest, expected, key = _state(core, state)
+    reads.clear()
+    assert bpy.ops.larap.apply() == {"FINISHED"}
+    edited = state == "behind, edited by hand"
+    moved = rest + (expected - rest)  # the Basis moved by the pose's offsets (mesh_data.apply_offsets)
+    assert not obj.larap.bound
+    if edited:
+        # The snapshot's three; the full validation's Basis and groups; the copy's check of the
+        # Basis; the keys moved (the Basis, the copy).
+        assert dict(reads) == {MESH: 1, BASIS: 4, POSE: 1, MIX: 1, EDITS: 1}
+        assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "LARAP edits"]
+        assert np.array_equal(coords(obj, "Basis"), moved)
+        assert np.array_equal(coords(obj, "LARAP edits"), key + (expected - rest))
+        assert np.array_equal(coords(obj), expected)
+    else:
+        # ... and the Basis bind created, removed with the last key: the mesh takes its positions.
+        assert dict(reads) == {MESH: 1, BASIS: 4, POSE: 1, MIX: 1}
+        assert obj.data.shape_keys is None
+        assert np.array_equal(coords(obj), moved)

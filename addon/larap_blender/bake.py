@@ -35,8 +35,9 @@ def bake_shape_key(obj, name="LARAP_pose", *, overwrite=False):
     if keys is not None and name in keys.key_blocks and not overwrite:
         raise LarapError("Shape key %r exists; choose another name or enable Overwrite" % name)
     with preserve_on_error(obj) as snap:
-        # The pose key as the snapshot read it: current_pose and its solve do not read it again.
-        kb = write_key(obj, name, current_pose(obj, snapshot_key(snap, obj.larap.shape_key)))
+        # The pose key and the rest shape as the snapshot read them: current_pose and its solve do
+        # not read them again.
+        kb = write_key(obj, name, current_pose(obj, snapshot_key(snap, obj.larap.shape_key), snap["rest"]))
         kb.value = 0.0
     return kb
 

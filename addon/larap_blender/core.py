@@ -116,10 +116,12 @@ def _bind(obj, keep_pose, p, snap):
     # of it): the solve finds them read. Its fast validation passes no rest to them, which would
     # then read the Basis again.
     membership(obj, rt, rt.rest)
-    # The pose key as the snapshot read it (None when bind has just made it): the check for hand
-    # edits before the solve writes it does not read it again.
+    # The pose key as the snapshot read it (None when bind has just made it), and the rest shape
+    # (rt.rest: a Basis made since is a copy of it): the check for hand edits before the solve
+    # writes the key reads neither again.
     kb = key_edits.pose_key(obj)
-    result = solve(obj, weights="final", validate="fast", posed=snapshot_key(snap, kb.name) if kb else None)
+    result = solve(obj, weights="final", validate="fast", posed=snapshot_key(snap, kb.name) if kb else None,
+                   rest=rt.rest)
     p.step(3)
     return result
 
@@ -359,18 +361,23 @@ def apply_pose(obj):
     first. A failure leaves the object as it was."""
     check_object(obj, need_bound=True)
     with preserve_on_error(obj) as snap:
-        return _apply_pose(obj, snapshot_key(snap, obj.larap.shape_key))
+        return _apply_pose(obj, snap)
 
 
-def _apply_pose(obj, posed):
-    """Apply, ``posed`` being the pose key as the caller's snapshot read it (nothing written since):
-    current_pose and its solve do not read it again."""
-    pose = current_pose(obj, posed)
+def _apply_pose(obj, snap):
+    """Apply from the positions the caller's snapshot ``snap`` read, nothing written since but
+    what this writes: current_pose and its solve take its pose key and rest shape, the move of the
+    keys its keys (a copy of hand edits made meanwhile is read), and the removal of a Basis bind
+    created takes the moved Basis as written."""
+    s = obj.larap
+    pose = current_pose(obj, snapshot_key(snap, s.shape_key), snap["rest"])
     rt = runtime(obj)
     me = obj.data
-    s = obj.larap
-    apply_offsets(obj, pose, rt.rest, skip=s.shape_key)
-    remove_pose_key(obj)
+    # rt.rest: the rest shape as it still is (current_pose), which the Basis is moved from. The
+    # other keys are as the snapshot read them: since, the solve wrote the pose key only (skipped).
+    known = {name: co for name, co, _rel, _props in snap["keys"] or ()}
+    moved = apply_offsets(obj, pose, rt.rest, skip=s.shape_key, known=known)
+    remove_pose_key(obj, basis=moved)  # the Basis as apply_offsets wrote it
     key_edits.put(obj, "")
     for h in s.handles:
         h.has_rest = False

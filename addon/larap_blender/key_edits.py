@@ -64,11 +64,12 @@ def edited(obj, kb, co=None):
     return _crc(block_positions(kb, n) if co is None else co) != stored.partition("/")[0]
 
 
-def _basis_changed(obj):
+def _basis_changed(obj, rest=None):
     """The rest shape differs from the one recorded with the last write (as far as the record
-    knows: after fast solves it may name an older rest)."""
+    knows: after fast solves it may name an older rest). ``rest``: its positions when the caller
+    has just read them (not read again)."""
     rest_hash = get(obj).partition("/")[2]
-    return bool(rest_hash) and array_hash(rest_positions(obj)) != rest_hash
+    return bool(rest_hash) and array_hash(rest_positions(obj) if rest is None else rest) != rest_hash
 
 
 def pose_key(obj):
@@ -82,17 +83,20 @@ def pose_key(obj):
     return kb
 
 
-def keep(obj, kb=None, co=None):
+def keep(obj, kb=None, co=None, rest=None):
     """Before LARAP writes or removes its pose key (``kb``, default :func:`pose_key`): copy hand
     edits (see :func:`edited`) into a new key "<name> edits" at value 0 and return its name (None:
     nothing to keep). The record is dropped, so the same edits are kept once. ``co``: that key's
-    positions when the caller has just read them, nothing written to it since (not read again)."""
+    positions when the caller has just read them, nothing written to it since (not read again);
+    ``rest``: likewise the rest positions (``mesh_data.rest_positions``), for the message's
+    "the Basis was edited too"."""
     kb = kb if kb is not None else pose_key(obj)
+    n = len(obj.data.vertices)
+    if co is None and kb is not None and get(obj) and len(kb.data) == n:
+        co = block_positions(kb, n)  # when edited() would read it: read once, for it and the copy
     if not edited(obj, kb, co):
         return None
-    basis = _basis_changed(obj)
-    if co is None:
-        co = block_positions(kb, len(obj.data.vertices))
+    basis = _basis_changed(obj, rest)
     copy = add_key_copy(obj, kb.name + EDITS_SUFFIX, co)
     put(obj, "")
     _KEPT.append((kb.name, copy.name, basis))

@@ -316,18 +316,32 @@ def remove_keys(obj, names):
             keys = obj.data.shape_keys
 
 
-def apply_offsets(obj, pose, rest, skip):
+def apply_offsets(obj, pose, rest, skip, known=None):
     """Move the mesh to ``pose`` and every key but ``skip`` by ``pose - rest`` (keys keep their
-    offsets to one another)."""
+    offsets to one another). ``rest``: the rest positions as they are now (:func:`rest_positions`),
+    which are the Basis's: the Basis becomes ``rest + (pose - rest)`` without being read.
+    ``known``: {key name: (n,3) float32 positions} of other keys the caller has read, nothing
+    written to them since (not read again). Returns what the Basis holds now (float32, as written:
+    what reading it back gives), or None when the mesh has no keys."""
     me = obj.data
     delta = pose - rest
     keys = me.shape_keys
+    moved = None
     if keys is not None:
         n = len(me.vertices)
+        basis = keys.reference_key
+        known = known or {}
         for kb in keys.key_blocks:
-            if kb.name != skip:
-                write_block(kb, block_positions(kb, n) + delta)
+            if kb.name == skip:
+                continue
+            if kb == basis:
+                moved = np.ascontiguousarray(rest + delta, dtype=np.float32)
+                write_block(kb, moved)
+            else:
+                co = known.get(kb.name)
+                write_block(kb, (block_positions(kb, n) if co is None else co) + delta)
     set_mesh_positions(me, pose)
+    return moved
 
 
 # ----------------------------------------------------------------------------------------------
@@ -386,9 +400,10 @@ def restore_pose_key(obj, co):
     obj.data.update_tag()
 
 
-def remove_pose_key(obj):
+def remove_pose_key(obj, basis=None):
     """Remove only what LARAP made: its pose key, and the Basis when bind created it and no other
-    key is left (the mesh keeps the Basis positions)."""
+    key is left (the mesh keeps the Basis positions). ``basis``: the Basis's positions when the
+    caller has just read or written them, nothing written to it since (not read again)."""
     s = obj.larap
     keys = obj.data.shape_keys
     if keys is None:
@@ -402,7 +417,7 @@ def remove_pose_key(obj):
     keys = obj.data.shape_keys
     if s.created_basis and keys is not None and len(keys.key_blocks) == 1:
         me = obj.data
-        co = block_positions(keys.reference_key, len(me.vertices))
+        co = block_positions(keys.reference_key, len(me.vertices)) if basis is None else basis
         obj.shape_key_clear()
         set_mesh_positions(me, co)
     s.owned_key_name = ""

@@ -312,12 +312,16 @@ def build_runtime(obj, rest=None):
     return _refresh(obj, key, arrays, topology_hash(me, arrays), rebuild=True, rest=rest)
 
 
-def ensure_runtime(obj, validate="full"):
+def ensure_runtime(obj, validate="full", rest=None):
     """Return a usable Runtime for a bound object, (re)building the engine when needed.
 
     ``validate="full"``: hash the topology (raises TopologyChanged) and the rest positions (rebuild
     when they changed), refresh the vertex-group membership. ``"fast"`` (live updates, drags):
     counts only, unless the object was reloaded/undone (new pointer), then full.
+
+    ``rest``: the rest positions (``mesh_data.rest_positions``) when the caller has just read them,
+    nothing written to the rest shape since (Bake and Apply: their snapshot's): a full validation
+    takes them, as ``Runtime.rest`` (read only), instead of reading the rest shape again.
     """
     s = obj.larap
     me = obj.data
@@ -334,4 +338,4 @@ def ensure_runtime(obj, validate="full"):
     topo = topology_hash(me, arrays)
     if topo != s.bind_topology:
         raise TopologyChanged("%r changed topology since bind (faces or wire edges differ); rebind it (LARAP > Bind)" % obj.name)
-    return _refresh(obj, key, arrays, topo, rebuild=False)
+    return _refresh(obj, key, arrays, topo, rebuild=False, rest=rest)

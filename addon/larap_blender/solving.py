@@ -94,7 +94,7 @@ def _weights_name(s, which):
 
 
 def solve(obj, *, weights="final", validate="full", overrides=None, write=True, lattice_only=False, tol=None,
-          max_iterations=None, from_rest=True, posed=None):
+          max_iterations=None, from_rest=True, posed=None, rest=None):
     """One solve from the current target transforms; writes the pose key. Returns SolveResult.
 
     ``weights``: "final", "interactive" or a weights name; ``validate``: see ensure_runtime;
@@ -110,7 +110,10 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
 
     ``posed``: the positions of the pose key LARAP owns (``key_edits.pose_key``) when the caller
     has just read them, nothing written to it since: the check for hand edits before the write
-    (``key_edits.keep``) does not read the key again."""
+    (``key_edits.keep``) does not read the key again. ``rest``: likewise the rest positions
+    (``mesh_data.rest_positions``), nothing written to the rest shape since: when that check finds
+    hand edits, it tells whether the Basis changed too from these, not reading it again. A full
+    validation has just read them itself (``rt.rest``), which then serve when none are given."""
     check_object(obj, need_bound=True)
     s = obj.larap
     t0 = time.perf_counter()
@@ -159,7 +162,9 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     if lattice_only:
         rt.needs_catchup = True
     elif write:
-        kept = key_edits.keep(obj, co=posed)
+        if rest is None and validate == "full":
+            rest = rt.rest  # nothing has written the rest shape since (the groups mix temporary keys)
+        kept = key_edits.keep(obj, co=posed, rest=rest)
         if kept:
             warnings.insert(0, key_edits.describe(kept))
             rt.kept_edits = kept
@@ -177,7 +182,7 @@ def solve(obj, *, weights="final", validate="full", overrides=None, write=True, 
     return SolveResult(rt.last_ms, engine_ms, warnings, wname, pose.count, kept)
 
 
-def current_pose(obj, posed=None):
+def current_pose(obj, posed=None, rest=None):
     """The pose to bake/apply: the pose key as it is when it holds the final pose of the current
     targets (key_up_to_date: what the artist sees once the moves pause), else the final solve of
     the current targets, written first (the catch-up), so Bake and Apply change nothing visible.
@@ -185,10 +190,14 @@ def current_pose(obj, posed=None):
 
     ``posed``: the pose key's positions (``mesh_data.key_positions`` of ``shape_key``) when the
     caller has just read them, nothing written to it since (Bake and Apply: their snapshot's):
-    neither this nor the solve's check for hand edits reads the key again."""
+    neither this nor the solve's check for hand edits reads the key again. ``rest``: likewise the
+    rest positions (``mesh_data.rest_positions``), nothing written to the rest shape since: the
+    full validation takes them (``ensure_runtime(rest=)``), and they are ``rt.rest`` afterwards:
+    the rest shape as it still is when this returns (the catch-up writes the pose key, and may add
+    a copy of hand edits; a Basis it adds to a mesh left without keys is a copy of the mesh)."""
     check_object(obj, need_bound=True)
     s = obj.larap
-    rt = ensure_runtime(obj, "full")
+    rt = ensure_runtime(obj, "full", rest=rest)
     membership(obj, rt, rt.rest)  # the handle groups as they are now (a weight painted since the pose)
     if posed is None:
         posed = key_positions(obj, s.shape_key)
@@ -198,5 +207,7 @@ def current_pose(obj, posed=None):
     # LARAP owns, takes these positions when that key is the one read (the name it is posed into).
     owned = key_edits.pose_key(obj)
     read = posed if owned is not None and owned.name == s.shape_key else None
-    solve(obj, weights="final", validate="fast", posed=read)
+    # Nor has anything written the rest shape since the full validation read it (rt.rest): the
+    # check's look at the Basis, when it finds hand edits, takes it too.
+    solve(obj, weights="final", validate="fast", posed=read, rest=rt.rest)
     return runtime(obj).out.copy()

@@ -129,12 +129,27 @@ def test_the_rest_shape_and_the_snapshot_are_read_only(core, monkeypatch):
     assert np.array_equal(core.runtime(obj).rest, rest.astype(np.float32))
 
 
-# Bake and Apply (current_pose): the pose key as their snapshot (transaction.preserve_on_error) read
-# it serves current_pose and, when the key is behind its targets, the solve's check for hand edits
-# before its write. The Basis is read again by current_pose's full validation (and by Apply's move
-# of the keys, and the removal of a Basis bind created); those reads are not the pose key's.
+# Bake and Apply (current_pose): the pose key and the Basis as their snapshot
+# (transaction.preserve_on_error) read them serve current_pose's full validation and, when the key
+# is behind its targets, the solve's check for hand edits before its write (whether the Basis
+# changed too); Apply moves the Basis from them, and the removal of a Basis bind created takes the
+# moved Basis as written. Each is read once.
 STATES = ("up to date", "behind its targets", "behind, edited by hand")
 EDITS = 'key_blocks["LARAP edits"].data'
+
+
+@pytest.fixture
+def basis_checks(core, monkeypatch):
+    """What key_edits._basis_changed answered (the check for hand edits found some), in order."""
+    from larap_blender import key_edits
+    seen = []
+    original = key_edits._basis_changed
+
+    def spying(obj, rest=None):
+        seen.append(original(obj, rest))
+        return seen[-1]
+    monkeypatch.setattr(key_edits, "_basis_changed", spying)
+    return seen
 
 
 def _state(core, state):
@@ -156,15 +171,16 @@ def _state(core, state):
 
 
 @pytest.mark.parametrize("state", STATES)
-def test_bake_reads_the_pose_key_once(core, reads, state):
+def test_bake_reads_the_pose_key_and_the_basis_once(core, reads, basis_checks, state):
     from larap_blender import solving
     obj, rest, expected, key = _state(core, state)
     reads.clear()
     assert bpy.ops.larap.bake_shape_key(name="Baked") == {"FINISHED"}
     edited = state == "behind, edited by hand"
-    # The snapshot: the mesh, the Basis, the pose key; the full validation: the Basis and the
-    # groups; a copy of hand edits: the Basis (whether it changed too).
-    assert dict(reads) == {MESH: 1, BASIS: 3 if edited else 2, POSE: 1, MIX: 1}
+    # The snapshot: the mesh, the Basis, the pose key; the full validation: the groups (with the
+    # snapshot's Basis, which a copy of hand edits compares with the recorded rest too).
+    assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, MIX: 1}
+    assert basis_checks == ([False] if edited else [])
     assert np.array_equal(coords(obj, "Baked"), expected)  # the final pose of the targets, bit for bit
     assert np.array_equal(coords(obj, "LARAP"), expected) and solving.key_up_to_date(obj)
     assert np.array_equal(coords(obj, "Basis"), rest)
@@ -175,23 +191,100 @@ def test_bake_reads_the_pose_key_once(core, reads, state):
 
 
 @pytest.mark.parametrize("state", STATES)
-def test_apply_reads_the_pose_key_once(core, reads, state):
+def test_apply_reads_the_pose_key_and_the_basis_once(core, reads, basis_checks, state):
     obj, rest, expected, key = _state(core, state)
     reads.clear()
     assert bpy.ops.larap.apply() == {"FINISHED"}
     edited = state == "behind, edited by hand"
     moved = rest + (expected - rest)  # the Basis moved by the pose's offsets (mesh_data.apply_offsets)
     assert not obj.larap.bound
+    assert basis_checks == ([False] if edited else [])
     if edited:
-        # The snapshot's three; the full validation's Basis and groups; the copy's check of the
-        # Basis; the keys moved (the Basis, the copy).
-        assert dict(reads) == {MESH: 1, BASIS: 4, POSE: 1, MIX: 1, EDITS: 1}
+        # The snapshot's three; the full validation's groups; of the keys moved, the copy of the
+        # hand edits (made since the snapshot; the Basis is moved from the snapshot's).
+        assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, MIX: 1, EDITS: 1}
         assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "LARAP edits"]
         assert np.array_equal(coords(obj, "Basis"), moved)
         assert np.array_equal(coords(obj, "LARAP edits"), key + (expected - rest))
         assert np.array_equal(coords(obj), expected)
     else:
-        # ... and the Basis bind created, removed with the last key: the mesh takes its positions.
-        assert dict(reads) == {MESH: 1, BASIS: 4, POSE: 1, MIX: 1}
+        # ... and the Basis bind created, removed with the last key: the mesh takes its positions
+        # as apply_offsets wrote them (not read back).
+        assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, MIX: 1}
         assert obj.data.shape_keys is None
         assert np.array_equal(coords(obj), moved)
+
+
+def test_bake_after_a_basis_edit_tells_it_from_the_snapshot(core, reads, basis_checks):
+    """The Basis and the pose key edited by a script, the targets moved: Bake's full validation
+    rebuilds the engine on the snapshot's Basis, and the check for hand edits finds the Basis
+    changed from the snapshot's too (the message says so), reading neither again."""
+    from larap_blender import key_edits
+    obj, rest, targets = posed(core)
+    keys = obj.data.shape_keys.key_blocks
+    keys["Basis"].data[5].co.z += 0.3
+    keys["LARAP"].data[5].co.z += 0.3
+    basis, key = coords(obj, "Basis"), coords(obj, "LARAP")
+    engine = core.runtime(obj).deformer
+    targets[1].location.z += 0.2
+    bpy.context.view_layer.update()
+    activate(obj)
+    key_edits.take_messages()
+    reads.clear()
+    assert core.bake_shape_key(obj, "Baked").name == "Baked"
+    assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, MIX: 1}
+    assert basis_checks == [True]
+    assert any("the Basis was edited too" in m for m in key_edits.take_messages())
+    rt = core.runtime(obj)
+    assert rt.deformer is not engine and np.array_equal(rt.rest, basis)  # rebuilt on the edited Basis
+    assert np.array_equal(coords(obj, "LARAP edits"), key)
+    baked = coords(obj, "Baked")
+    core.solve(obj, weights="final", validate="full", write=False)  # reading the Basis: the same engine
+    assert core.runtime(obj).deformer is rt.deformer
+    assert np.array_equal(baked, core.runtime(obj).out)
+
+
+def test_a_solve_and_a_rebind_finding_hand_edits_read_the_basis_once(core, reads, basis_checks):
+    """A full validation's rest (a solve's) and the snapshot's (a rebind's) serve the check for
+    hand edits, which tells from them that the Basis did not change."""
+    obj, rest, targets = posed(core)
+    keys = obj.data.shape_keys.key_blocks
+    keys["LARAP"].data[5].co.z += 0.3
+    edited = coords(obj, "LARAP")
+    targets[1].location.z += 0.1
+    bpy.context.view_layer.update()
+    reads.clear()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    assert dict(reads) == {BASIS: 1, MIX: 1, POSE: 1}
+    assert np.array_equal(coords(obj, "LARAP edits"), edited)
+    keys["LARAP"].data[6].co.z += 0.3
+    edited = coords(obj, "LARAP")
+    reads.clear()
+    assert bpy.ops.larap.bind() == {"FINISHED"}
+    assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, EDITS: 1, MIX: 1}  # (the snapshot reads every key)
+    assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "LARAP", "LARAP edits",
+                                                                  "LARAP edits.001"]
+    assert np.array_equal(coords(obj, "LARAP edits.001"), edited)
+    assert basis_checks == [False, False]
+
+
+def test_apply_moves_the_other_keys_from_the_snapshot(core, reads):
+    """A key of the artist's moves with the Basis from the positions the snapshot read (not read
+    again), bit for bit as from a read."""
+    obj, rest, targets = posed(core)
+    smile = obj.shape_key_add(name="Smile", from_mix=False)
+    smile.data[7].co.y += 0.25
+    smile.relative_key = obj.data.shape_keys.reference_key
+    key, basis = coords(obj, "Smile").astype(np.float32), coords(obj, "Basis").astype(np.float32)
+    targets[1].location.z += 0.2
+    bpy.context.view_layer.update()
+    core.solve(obj, weights="final", validate="full", write=False)
+    expected = core.runtime(obj).out.copy()
+    activate(obj)
+    reads.clear()
+    assert bpy.ops.larap.apply() == {"FINISHED"}
+    assert dict(reads) == {MESH: 1, BASIS: 1, POSE: 1, MIX: 1, 'key_blocks["Smile"].data': 1}
+    assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "Smile"]
+    assert np.array_equal(coords(obj, "Basis"), basis + (expected - basis))
+    assert np.array_equal(coords(obj, "Smile"), key + (expected - basis))
+    assert np.array_equal(coords(obj), expected)

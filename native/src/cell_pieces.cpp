@@ -225,9 +225,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
-  // (a few rows of bits; or the part sets' masks and the union-find, 12 k^3; or their offsets,
-  // last-part table and union-find: 16 k^3), or before that, of the row it is finding crossings
-  // for (the largest rows), whichever is more; and the bookkeeping: 1 KiB per analysed cell (neighbours,
+  // (a few rows of bits; or the part sets' masks, the voxels' classes and each part's rows, 12 k^3
+  // + 8 kMaskParts k^2; or their offsets, last-part table and union-find: 16 k^3), or before
+  // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
+  // bookkeeping: 1 KiB per analysed cell (neighbours,
   // seeds, piece sizes, links twice over; the rows' tables alive with the voxels, at most 3 rows per cell:
   // about 100 bytes), 32 bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
@@ -242,7 +243,8 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     std::partial_sort(row_bytes.begin(), row_bytes.begin() + top, row_bytes.end(), std::greater<double>());
     double rows_scratch = 0;
     for (size_t i = 0; i < top; ++i) rows_scratch += row_bytes[i];
-    bytes += std::max(16.0 * double(k3) * threads, rows_scratch);  // the rows' is freed before the cells'
+    bytes += std::max((16.0 * double(k3) + 8.0 * kMaskParts * k2d) * threads,
+                      rows_scratch);  // the rows' is freed before the cells'
     std::vector<double>().swap(row_bytes);
   }
   std::vector<int32_t> ps;  // the parts of a cell

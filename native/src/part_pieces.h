@@ -47,7 +47,8 @@ struct PartSets {
     return sorted_sets_meet(lists.data() + offsets[a], lists.data() + offsets[a + 1],
                             lists.data() + offsets[b], lists.data() + offsets[b + 1]);
   }
-  // The parts of voxel vi, ascending: a range of lists, or of scratch, which a mask is read into.
+  // The parts of voxel vi, ascending: a range of lists, or of scratch, which a mask is read into
+  // (valid until the next call with the same scratch).
   std::pair<const int32_t*, const int32_t*> of(int64_t vi, std::vector<int32_t>& scratch) const {
     if (masks.empty()) return {lists.data() + offsets[vi], lists.data() + offsets[vi + 1]};
     scratch.clear();

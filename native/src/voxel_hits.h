@@ -81,9 +81,14 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
   const double half = 0.5 * hv * (1.0 + 2.0 * grow + 1e-9);
   const Eigen::Vector3d halfv = Eigen::Vector3d::Constant(half);
   int v0[3], v1[3];
+  // The exact test's centres are rounded at the size of the coordinates: a few of their units
+  // of roundoff, in voxels, on top of the voxels' own 1e-9 growth.
+  const double Lc =
+      std::max({lo.cwiseAbs().maxCoeff(), hi.cwiseAbs().maxCoeff(), corner.cwiseAbs().maxCoeff() + k * hv});
+  const double slack = 1e-7 + 8.0 * 2.220446049250313e-16 * (Lc / hv);
   for (int w = 0; w < 3; ++w) {
-    v0[w] = clamped_floor((lo[w] - corner[w]) / hv - grow - 1e-7, 0, k - 1);
-    v1[w] = clamped_floor((hi[w] - corner[w]) / hv + grow + 1e-7, 0, k - 1);
+    v0[w] = clamped_floor((lo[w] - corner[w]) / hv - grow - slack, 0, k - 1);
+    v1[w] = clamped_floor((hi[w] - corner[w]) / hv + grow + slack, 0, k - 1);
   }
   auto centre_of = [&](const int* x) {
     return Eigen::Vector3d(hv * (x[0] + 0.5), hv * (x[1] + 0.5), hv * (x[2] + 0.5));

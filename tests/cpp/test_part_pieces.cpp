@@ -2,7 +2,8 @@
 // and their bit-row pieces give the same sets and the same labels as the lists and the voxel union-
 // find, and both follow the rule as a voxel-by-voxel flood reads it: two touching material voxels
 // join when one is enclosed or one part hits both. Random cells of 2 to 70 parts (more than 64:
-// lists), surface voxels that no part's grown voxel reaches, pieces past the 253 labels.
+// lists), k from 1 to 64, surface voxels that no part's grown voxel reaches, pieces past the 253
+// labels; the parts' sets against the exact test of every grown voxel.
 // Run: cmake --build build --target larap_tests && ctest --test-dir build -R 'PartPieces\.'
 #include <gtest/gtest.h>
 
@@ -11,6 +12,7 @@
 #include <random>
 #include <vector>
 
+#include "geometry.h"
 #include "part_pieces.h"
 #include "voxel_hits.h"
 
@@ -42,7 +44,9 @@ Cell random_cell(std::mt19937& rng, int k, int parts, int triangles, double air,
     const double size = 0.05 + 0.4 * unit(rng);
     for (int i = 0; i < 3; ++i) {
       c.V.row(3 * t + i) = (centre + size * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5)).transpose();
-      c.vertex_part.push_back(int32_t(std::uniform_int_distribution<int>(0, parts - 1)(rng)) * 3 + 7);
+      // the first `parts` triangles one part each, so that every part is there (64 and 65 exactly)
+      c.vertex_part.push_back(
+          int32_t(t < parts ? t : std::uniform_int_distribution<int>(0, parts - 1)(rng)) * 3 + 7);
     }
     // a triangle's vertices are of one part
     c.vertex_part[size_t(3 * t + 1)] = c.vertex_part[size_t(3 * t + 2)] = c.vertex_part[size_t(3 * t)];
@@ -107,26 +111,49 @@ std::vector<int32_t> reference_pieces(const Cell& c, const PartSets& sets) {
 
 TEST(PartPieces, MasksAndListsGiveTheRulesPieces) {
   std::mt19937 rng(5);
-  int cells = 0, several_pieces = 0, merged = 0;
+  int cells = 0, several_pieces = 0, merged = 0, cells64 = 0;
   int64_t partless = 0;  // surface voxels that no part's grown voxel reaches
-  for (int k : {3, 8, 17, 24})
-    for (int parts : {2, 3, 7, 70})
+  for (int k : {1, 3, 8, 17, 24, 64})
+    for (int parts : {2, 3, 7, 64, 65, 70})
       for (double air : {0.2, 0.6, 0.95})
         for (int round = 0; round < 3; ++round) {
           const int orphans = round == 2 ? 1 + k : 0;
-          const Cell c = random_cell(rng, k, parts, parts == 70 ? 140 : 2 + 3 * round + parts, air, orphans);
+          const Cell c =
+              random_cell(rng, k, parts, parts >= 64 ? parts + 70 : 2 + 3 * round + parts, air, orphans);
           const PartSets masks = sets_of(c, kMaskParts), lists = sets_of(c, 0);
           ASSERT_EQ(masks.parts, lists.parts);
           ASSERT_EQ(masks.masks.empty(), masks.parts.size() > size_t(kMaskParts));
           ASSERT_TRUE(lists.masks.empty());
-          // The same sets voxel by voxel, each part's grown voxels among them (on surface voxels).
+          // The same sets voxel by voxel, and they are the parts whose triangles the surface
+          // voxel, grown by kContact, overlaps (the exact test on every voxel).
           const int64_t k3 = int64_t(k) * k * k;
+          std::vector<std::vector<int32_t>> grown(static_cast<size_t>(k3));
+          if (k <= 17) {
+            const Eigen::Vector3d half =
+                Eigen::Vector3d::Constant(0.5 * c.hv * (1.0 + 2.0 * kContact + 1e-9));
+            for (const Eigen::Vector3i& t : c.tris)
+              for (int64_t vi = 0; vi < k3; ++vi) {
+                const Eigen::Vector3d centre =
+                    c.corner +
+                    c.hv * Eigen::Vector3d(vi % k + 0.5, (vi / k) % k + 0.5, vi / (int64_t(k) * k) + 0.5);
+                if (c.v[size_t(vi)] == 1 &&
+                    geometry::triangle_box_overlap(centre, half, c.V.row(t[0]).transpose(),
+                                                   c.V.row(t[1]).transpose(), c.V.row(t[2]).transpose()))
+                  grown[size_t(vi)].push_back(c.vertex_part[size_t(t[0])]);
+              }
+            for (auto& g : grown) {
+              std::sort(g.begin(), g.end());
+              g.erase(std::unique(g.begin(), g.end()), g.end());
+            }
+          }
           std::vector<int32_t> s1, s2;
           for (int64_t vi = 0; vi < k3; ++vi) {
             const auto [a0, a1] = masks.of(vi, s1);
             const auto [b0, b1] = lists.of(vi, s2);
             ASSERT_TRUE(std::equal(a0, a1, b0, b1)) << "voxel " << vi;
             ASSERT_TRUE(std::is_sorted(a0, a1));
+            if (k <= 17)
+              ASSERT_TRUE(std::equal(a0, a1, grown[size_t(vi)].begin(), grown[size_t(vi)].end())) << vi;
             if (c.v[size_t(vi)] != 1) ASSERT_EQ(a0, a1);
             partless += c.v[size_t(vi)] == 1 && a0 == a1;
           }
@@ -155,8 +182,10 @@ TEST(PartPieces, MasksAndListsGiveTheRulesPieces) {
           ++cells;
           several_pieces += na > 1;
           merged += na > 253;
+          cells64 += masks.parts.size() == 64 && !masks.masks.empty();
         }
   EXPECT_GT(several_pieces, cells / 3);
   EXPECT_GT(partless, 10);
   EXPECT_GT(merged, 0);
+  EXPECT_GT(cells64, 10);
 }

@@ -225,10 +225,10 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
   // cell its k^3 voxels; when parts are told apart, a byte per face voxel (6 k^2) for a cell of one
   // part, and for a cell of P parts a 4-byte key per face voxel plus the face sets, at most one per
   // face voxel (a 4-byte offset and P parts of 4 bytes); per worker thread, the scratch of one cell
-  // (a few rows of bits; or the part sets' masks, the voxels' classes and each part's rows, 12 k^3
-  // + 8 kMaskParts k^2; or their offsets, last-part table and union-find: 16 k^3), or before
-  // that, of the row it is finding crossings for (the largest rows), whichever is more; and the
-  // bookkeeping: 1 KiB per analysed cell (neighbours,
+  // (a few rows of bits; or the part sets' masks and the voxels' classes, 12 k^3, and each part's
+  // rows, 8 P k^2 for P <= 64 parts, counted below; or their offsets, last-part table and
+  // union-find: 16 k^3), or before that, of the row it is finding crossings for (the largest
+  // rows), whichever is more; and the bookkeeping: 1 KiB per analysed cell (neighbours,
   // seeds, piece sizes, links twice over; the rows' tables alive with the voxels, at most 3 rows per cell:
   // about 100 bytes), 32 bytes per vertex in one (its piece, found and returned).
   const double k2d = double(k) * k;
@@ -243,11 +243,11 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
     std::partial_sort(row_bytes.begin(), row_bytes.begin() + top, row_bytes.end(), std::greater<double>());
     double rows_scratch = 0;
     for (size_t i = 0; i < top; ++i) rows_scratch += row_bytes[i];
-    bytes += std::max((16.0 * double(k3) + 8.0 * kMaskParts * k2d) * threads,
-                      rows_scratch);  // the rows' is freed before the cells'
+    bytes += std::max(16.0 * double(k3) * threads, rows_scratch);  // the rows' is freed before the cells'
     std::vector<double>().swap(row_bytes);
   }
   std::vector<int32_t> ps;  // the parts of a cell
+  double most_parts = 0;    // in a cell of several
   if (by_part)
     for (int64_t b = 0; b < nb; ++b) {
       if (part_of[b] != kSeveral) {
@@ -258,12 +258,15 @@ CellPieces find_cell_pieces(const Eigen::Vector3d& origin, double h, const Eigen
       for (int32_t q = cand_offsets[b]; q < cand_offsets[b + 1]; ++q) ps.push_back(vertex_part[tris[cand_tris[q]][0]]);
       std::sort(ps.begin(), ps.end());
       const double np = double(std::unique(ps.begin(), ps.end()) - ps.begin());
+      most_parts = std::max(most_parts, np);
       // Distinct face sets: at most one per face voxel, and at most the 2^P - P sets of parts
       // other than the single parts; each 4 bytes of offset and up to P parts, held twice while
       // they are gathered.
       const double nsets = std::min(6.0 * k2d, std::ldexp(1.0, int(std::min(np, 60.0))) - np);
       bytes += 24.0 * k2d + 2.0 * nsets * (4.0 + 4.0 * np);
     }
+  // Per worker, a cell of several parts by masks has a row of bits per part and voxel row too.
+  if (most_parts <= kMaskParts) bytes += 8.0 * most_parts * k2d * threads;
   if (bytes > double(max_voxel_bytes)) {
     throw OutOfMemory("cell splitting would analyse " + std::to_string(nb) + " cells: up to " + memory_text(bytes) +
                       " of voxels and face tables, over the " +

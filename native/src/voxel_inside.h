@@ -110,7 +110,9 @@ void RowRays::votes(int cell, F&& visit) const {
           end = e < k ? int(e) : k;
         }
         const int n = (below != 0) + ((below ^ total) != 0);
-        if (n)
+        if (n && a_ == 0)  // voxels next to one another: a loop the compiler can widen
+          for (; ia < end; ++ia) visit(base + ia, n);
+        else if (n)
           for (; ia < end; ++ia) visit(base + ia * stride[a_], n);
         else
           ia = std::max(ia, end);

@@ -34,10 +34,18 @@ def bake_shape_key(obj, name="LARAP_pose", *, overwrite=False):
         raise LarapError("Choose a name other than %r" % name)
     if keys is not None and name in keys.key_blocks and not overwrite:
         raise LarapError("Shape key %r exists; choose another name or enable Overwrite" % name)
+    existed = keys is not None and name in keys.key_blocks
     with preserve_on_error(obj) as snap:
         # The pose key and the rest shape as the snapshot read them: current_pose and its solve do
         # not read them again.
-        kb = write_key(obj, name, current_pose(obj, snapshot_key(snap, obj.larap.shape_key), snap["rest"]))
+        pose = current_pose(obj, snapshot_key(snap, obj.larap.shape_key), snap["rest"])
+        keys = obj.data.shape_keys
+        if not existed and name in keys.key_blocks:
+            # The catch-up kept hand edits of the pose key under this very name (key_edits.keep):
+            # writing the pose there would lose them. Raising puts everything back as it was.
+            raise LarapError("%r is the name LARAP gives the copy of hand edits to its pose key; choose "
+                             "another name" % name)
+        kb = write_key(obj, name, pose)
         kb.value = 0.0
     return kb
 

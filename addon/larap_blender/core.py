@@ -384,4 +384,4 @@ def _apply_pose(obj, snap):
     s.bound = False
     drop_runtime(obj)
     me.update()
-    return pose
+    return pose.copy()  # (the snapshot's own array when the key was up to date: read only)

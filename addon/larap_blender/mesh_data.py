@@ -39,7 +39,9 @@ def _get_ids(collection, attr, count, width=1):
 
 def read_only(a):
     """``a``, marked read only (an array several holders share: the runtime's rest shape, a
-    snapshot's positions); a write to it raises instead of changing what the others see."""
+    snapshot's positions): a numpy write to it raises instead of changing what the others see.
+    Blender's ``foreach_get`` ignores the flag: never read into such an array (``_get`` always
+    reads into a new one)."""
     a.flags.writeable = False
     return a
 

@@ -268,12 +268,16 @@ def _new_runtime(obj, rest, faces):
 def _refresh(obj, key, arrays, topo, rebuild, rest=None):
     """Fill the object's runtime from its rest shape as it is now (``rest``: its positions, when
     the caller has just read them); a new engine when ``rebuild``, or when the settings, rest
-    positions or topology differ from what the cached one was built on. ``rt.rest`` is read only
-    (the caller's array, given one: a snapshot's, which the solves read too)."""
+    positions or topology differ from what the cached one was built on. ``rt.rest`` is read only:
+    the caller's array when it is (a snapshot's, which the solves read too), else a copy, so that a
+    caller's own array is neither frozen nor shared."""
     s = obj.larap
     me = obj.data
     sig = _settings_sig(s)
-    rest = read_only(rest_positions(obj) if rest is None else rest)
+    if rest is None:
+        rest = read_only(rest_positions(obj))
+    elif rest.flags.writeable:
+        rest = read_only(rest.copy())
     rest_hash = array_hash(rest)
     rt = _RUNTIMES.get(key)
     if (rebuild or rt is None or rt.deformer is None or rt.settings_sig != sig or rt.rest_hash != rest_hash

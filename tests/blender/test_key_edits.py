@@ -5,6 +5,7 @@ LARAP writes or removes the pose key (key_edits.py)."""
 import bmesh
 import bpy
 import numpy as np
+import pytest
 
 from conftest import activate, bar_with_handles, coords
 
@@ -151,6 +152,29 @@ def test_apply_and_bake_report_a_copy_they_made(core):
     assert any("kept in the shape key %r" % (KEY + " edits") in m for m in reports), reports
     assert bpy.ops.larap.apply() == {"FINISHED"}
     assert "_larap_key" not in obj
+
+
+def test_bake_under_the_name_of_the_edits_copy_loses_nothing(core):
+    """Bake named as the copy of hand edits will be ("LARAP edits", not there yet), with the key
+    edited by hand and behind its targets: the catch-up keeps the edits under that name, so the
+    bake stops with a clear message and leaves everything as it was (a review found the pose
+    written over the edits, the message still naming them kept)."""
+    from larap_blender.errors import LarapError
+    obj, rest, left, right, targets = _posed(core)
+    obj.data.shape_keys.key_blocks[KEY].data[5].co.z += 0.3
+    edited = coords(obj, KEY).copy()
+    targets[1].location.z += 0.2
+    bpy.context.view_layer.update()
+    activate(obj)
+    before = {name: coords(obj, name).copy() for name in _keys(obj)}
+    with pytest.raises(LarapError, match="copy of hand edits"):
+        core.bake_shape_key(obj, KEY + " edits")
+    assert _keys(obj) == list(before)  # put back: no copy, no bake
+    for name, co in before.items():
+        assert np.array_equal(coords(obj, name), co), name
+    assert np.array_equal(coords(obj, KEY), edited)  # the edits, still in the pose key
+    assert bpy.ops.larap.bake_shape_key(name="Baked") == {"FINISHED"}  # another name: kept, then baked
+    assert np.array_equal(coords(obj, KEY + " edits"), edited)
 
 
 def test_a_cancelled_drag_leaves_the_edits_where_they_were(core):

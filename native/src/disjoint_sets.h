@@ -15,6 +15,11 @@ namespace larap {
 struct DisjointSets {
   std::vector<int32_t> parent;
   explicit DisjointSets(int64_t n) : parent(size_t(n)) { std::iota(parent.begin(), parent.end(), 0); }
+  // A new member in a class of its own; returns it.
+  int32_t add() {
+    parent.push_back(int32_t(parent.size()));
+    return parent.back();
+  }
   int32_t find(int32_t x) {
     while (parent[x] != x) x = parent[x] = parent[parent[x]];
     return x;

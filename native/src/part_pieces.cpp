@@ -102,27 +102,17 @@ int32_t pieces_by_mask(uint8_t* v, int k, const PartSets& sets, std::vector<int3
   const int rows = k * k;
   const int64_t k3 = int64_t(rows) * k;
   std::vector<int32_t> cls(static_cast<size_t>(k3), -1);
-  std::vector<int32_t> parent;
-  auto find = [&](int32_t x) {
-    while (parent[size_t(x)] != x) x = parent[size_t(x)] = parent[size_t(parent[size_t(x)])];
-    return x;
-  };
-  auto unite = [&](int32_t a, int32_t b) {
-    a = find(a);
-    b = find(b);
-    if (a != b) parent[size_t(std::max(a, b))] = std::min(a, b);
-  };
+  DisjointSets classes(0);
   auto add_pieces = [&](uint64_t* left) {  // a class per piece of left (emptied)
     for_each_piece(k, left, [&](const uint64_t* piece, RowSpan span) {
-      const int32_t c = int32_t(parent.size());
-      parent.push_back(c);
+      const int32_t c = classes.add();
       for (int r = span.first; r <= span.last; ++r)
         for (uint64_t m = piece[r]; m; m &= m - 1) {
           int32_t& x = cls[size_t(int64_t(r) * k + __builtin_ctzll(m))];
           if (x < 0)
             x = c;
           else
-            unite(x, c);
+            classes.unite(x, c);
         }
     });
   };
@@ -139,10 +129,7 @@ int32_t pieces_by_mask(uint8_t* v, int k, const PartSets& sets, std::vector<int3
       const int i = __builtin_ctzll(m);
       const int64_t vi = int64_t(r) * k + i;
       const uint64_t parts = sets.masks[size_t(vi)];
-      if (!parts) {
-        cls[size_t(vi)] = int32_t(parent.size());
-        parent.push_back(cls[size_t(vi)]);
-      }
+      if (!parts) cls[size_t(vi)] = classes.add();
       for (uint64_t q = parts; q; q &= q - 1)
         by_part[size_t(__builtin_ctzll(q)) * rows + r] |= uint64_t(1) << i;
     }
@@ -156,7 +143,7 @@ int32_t pieces_by_mask(uint8_t* v, int k, const PartSets& sets, std::vector<int3
     auto join = [&](uint64_t m, int64_t step) {  // enclosed voxel vi with a surface voxel at vi + step
       for (; m; m &= m - 1) {
         const int64_t vi = int64_t(r) * k + __builtin_ctzll(m);
-        unite(cls[size_t(vi)], cls[size_t(vi + step)]);
+        classes.unite(cls[size_t(vi)], cls[size_t(vi + step)]);
       }
     };
     join(e & (surface[size_t(r)] >> 1), 1);
@@ -167,7 +154,7 @@ int32_t pieces_by_mask(uint8_t* v, int k, const PartSets& sets, std::vector<int3
     if (r + k < rows) join(e & surface[size_t(r + k)], rows);
   }
   return write_labels(
-      v, k3, int64_t(parent.size()), [&](int64_t vi) { return find(cls[size_t(vi)]); }, size);
+      v, k3, int64_t(classes.parent.size()), [&](int64_t vi) { return classes.find(cls[size_t(vi)]); }, size);
 }
 
 }  // namespace

@@ -55,6 +55,16 @@ inline int clamped_floor(double t, int lo, int hi) {
   return t >= hi ? hi : int(std::floor(t));
 }
 
+// Narrows [x0, x1] to the voxels along a line (a voxel to spare at either end) whose centre
+// projects into [lo, hi] on an axis that moves by `step` a voxel: with the projection at voxel x
+// being step (x + 1/2) + a constant, lo and hi are the limits less that constant.
+inline void narrow(double lo, double hi, double step, int k, int& x0, int& x1) {
+  double t0 = lo / step - 0.5, t1 = hi / step - 0.5;
+  if (t0 > t1) std::swap(t0, t1);
+  x0 = std::max(x0, clamped_floor(t0, -2, k + 1) - 1);
+  x1 = std::min(x1, -clamped_floor(-t1, -(k + 1), 2) + 1);  // ceil(t1) + 1
+}
+
 inline Axis make_axis(const Eigen::Vector3d& m, const Eigen::Vector3d p[3], double half, double tol) {
   Axis x;
   x.m = m;
@@ -166,10 +176,7 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
       // |n . (p - centre)| <= r where the plane crosses the voxel's box.
       const double s = normal.lo - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
       const double s1 = normal.hi - hv * (n[u] * (x[u] + 0.5) + n[w] * (x[w] + 0.5));
-      double t0 = (s - normal.r) / (hv * n[d]) - 0.5, t1 = (s1 + normal.r) / (hv * n[d]) - 0.5;
-      if (t0 > t1) std::swap(t0, t1);
-      x0 = std::max(x0, clamped_floor(t0, -2, k + 1) - 1);
-      x1 = std::min(x1, -clamped_floor(-t1, -(k + 1), 2) + 1);  // ceil(t1) + 1
+      narrow(s - normal.r, s1 + normal.r, hv * n[d], k, x0, x1);
     }
     for (x[d] = x0; x[d] <= x1; ++x[d]) {
       const int64_t vi = x[0] + int64_t(k) * (x[1] + int64_t(k) * x[2]);
@@ -224,11 +231,7 @@ void for_each_voxel_hit(const Eigen::Vector3d& corner, double hv, int k, const E
       for (const Axis& ax : column_axes) {
         if (ax.zero || !(std::abs(ax.m[u]) * hv > 2.0 * ax.tol)) continue;
         const double base = ax.m[w] * hv * (x[w] + 0.5);
-        double t0 = (ax.lo - ax.r - base) / (hv * ax.m[u]) - 0.5,
-               t1 = (ax.hi + ax.r - base) / (hv * ax.m[u]) - 0.5;
-        if (t0 > t1) std::swap(t0, t1);
-        p0 = std::max(p0, clamped_floor(t0, -2, k + 1) - 1);
-        p1 = std::min(p1, -clamped_floor(-t1, -(k + 1), 2) + 1);
+        narrow(ax.lo - ax.r - base, ax.hi + ax.r - base, hv * ax.m[u], k, p0, p1);
       }
     // A column axis's margin is convex along the row (the larger of two affine functions): between
     // two sure columns every column axis overlaps by tol less the rounding, far inside what the

@@ -147,6 +147,20 @@ def bar_with_handles(core):
     return obj, rest, left, right, targets
 
 
+def posed_bar(core):
+    """bar_with_handles with its Right Empty moved up and turned, solved: (obj, rest, left, right,
+    targets, pose), pose the LARAP key's positions."""
+    from mathutils import Euler
+    obj, rest, left, right, targets = bar_with_handles(core)
+    targets[1].location.z += 0.6
+    targets[1].rotation_euler = Euler((0.0, math.radians(-30), 0.0))
+    bpy.context.view_layer.update()
+    assert bpy.ops.larap.solve() == {"FINISHED"}
+    pose = coords(obj, "LARAP")
+    assert np.abs(pose[right, 2] - rest[right, 2]).max() > 0.3  # really posed
+    return obj, rest, left, right, targets, pose
+
+
 def coarse(obj, cells=1000):
     """A coarser lattice than the engine default keeps the tests quick on small CI machines."""
     obj.larap.resolution_mode = "CELLS"

@@ -6,14 +6,12 @@
 # again, and the arrays it shares are read only.
 # Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_reads.py
 import collections
-import math
 
 import bpy
 import numpy as np
 import pytest
-from mathutils import Euler
 
-from conftest import activate, add_group, bar_with_handles, coarse, coords, diagonal, make_bar
+from conftest import activate, add_group, coarse, coords, diagonal, make_bar, posed_bar
 
 MESH = "vertices"
 BASIS = 'key_blocks["Basis"].data'
@@ -37,12 +35,8 @@ def reads(core, monkeypatch):
 
 
 def posed(core):
-    """The bar with its Right Empty moved up and turned, solved."""
-    obj, rest, left, right, targets = bar_with_handles(core)
-    targets[1].location.z += 0.6
-    targets[1].rotation_euler = Euler((0.0, math.radians(-30), 0.0))
-    bpy.context.view_layer.update()
-    assert bpy.ops.larap.solve() == {"FINISHED"}
+    """The bar with its Right Empty moved up and turned, solved (conftest.posed_bar)."""
+    obj, rest, _left, _right, targets, _pose = posed_bar(core)
     return obj, rest, targets
 
 

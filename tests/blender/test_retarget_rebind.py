@@ -1,26 +1,12 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 # Retargeting a handle and rebinding keep the pose; going back to rest is its own action.
 # Run: blender -b --factory-startup --python-exit-code 1 --python tests/blender/run_tests.py -- tests/blender/test_retarget_rebind.py
-import math
-
 import bpy
 import numpy as np
 import pytest
 from mathutils import Euler, Matrix, Vector
 
-from conftest import activate, bar_with_handles, coords, diagonal
-
-
-def posed_bar(core):
-    """The bar with its Right Empty moved up and turned, solved: (obj, rest, left, right, targets, pose)."""
-    obj, rest, left, right, targets = bar_with_handles(core)
-    targets[1].location.z += 0.6
-    targets[1].rotation_euler = Euler((0.0, math.radians(-30), 0.0))
-    bpy.context.view_layer.update()
-    assert bpy.ops.larap.solve() == {"FINISHED"}
-    pose = coords(obj, "LARAP")
-    assert np.abs(pose[right, 2] - rest[right, 2]).max() > 0.3  # really posed
-    return obj, rest, left, right, targets, pose
+from conftest import activate, bar_with_handles, coords, diagonal, posed_bar
 
 
 def new_empty(name, location, rotation=(0.0, 0.0, 0.0)):

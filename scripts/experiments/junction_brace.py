@@ -60,40 +60,41 @@ def solver(d, V, groups, mu):
     s = Braced(lat, rows, alpha, mu, gamma=0.03, rotations="cell", cw=np.repeat(cw[:, None], 12, 1) if len(cw) else None, floor=1e-9)
     return lat, s
 
-mus = [float(x) for x in sys.argv[2].split(",")]
-if sys.argv[1] == "wrist":
-    V, F, parts = shapes.character(); groups, _ = tj.finger_pose(V, parts); size = tj.hand_size(V, parts)
-    wx = V[parts["hand"], 0].min(); fingers = np.concatenate(parts["fingers"])
-    R = affine(rotation([0, 1, 0], -90.0), pivot=(wx + 0.02, 0.0, 1.42))
-    T = np.stack([np.eye(4)] + [R] * (len(groups) - 1)); ref = V[fingers] @ R[:3, :3].T + R[:3, 3]
-    d = larap.Deformer(V, F, weights="trilinear"); d.set_handle_groups(groups)
-    for mu in mus:
-        lat, s = solver(d, V, groups, mu)
-        X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 30))
-        print(f"mu {mu:g} braces {s.nbrace}: wrist 90 fingers off {100*np.linalg.norm(X[fingers]-ref,axis=1).max()/size:.2f}%", flush=True)
-elif sys.argv[1] == "comb":
-    for h in tt.SWEEP_SIZES:
-        V, F, tine_ids, _ = tt.comb(gap=0.1 * h); groups, T = tt.comb_pose(V, tine_ids, moved=1)
-        d = larap.Deformer(V, F, cell_size=h, weights="trilinear"); d.set_handle_groups(groups)
-        line = []
+if __name__ == "__main__":
+    mus = [float(x) for x in sys.argv[2].split(",")]
+    if sys.argv[1] == "wrist":
+        V, F, parts = shapes.character(); groups, _ = tj.finger_pose(V, parts); size = tj.hand_size(V, parts)
+        wx = V[parts["hand"], 0].min(); fingers = np.concatenate(parts["fingers"])
+        R = affine(rotation([0, 1, 0], -90.0), pivot=(wx + 0.02, 0.0, 1.42))
+        T = np.stack([np.eye(4)] + [R] * (len(groups) - 1)); ref = V[fingers] @ R[:3, :3].T + R[:3, 3]
+        d = larap.Deformer(V, F, weights="trilinear"); d.set_handle_groups(groups)
         for mu in mus:
             lat, s = solver(d, V, groups, mu)
             X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 30))
-            drag = max(np.linalg.norm(X[tine_ids[t]] - V[tine_ids[t]], axis=1).max() / diagonal(V) for t in (0, 2))
-            miss = np.linalg.norm(X[groups[2]] - tt.apply(T[2], V[groups[2]]), axis=1).max() / 6.0
-            line.append(f"mu{mu:g} {100*drag:.2f}/{100*miss:.1f}")
-        print(f"h {h} B{s.nbrace}: " + "  ".join(line), flush=True)
-else:
-    turned = float(sys.argv[3]) if len(sys.argv) > 3 else 0.0
-    V, F, parts = shapes.character(); groups, T = tj.finger_pose(V, parts); size = tj.hand_size(V, parts)
-    if turned: V, T = tj.turned_about_vertical(V, T, turned)
-    for cells in tj.CHARACTER_CELLS:
-        d = larap.Deformer(V, F, weights="trilinear", cells=cells); d.set_handle_groups(groups)
-        line = []
-        for mu in mus:
-            lat, s = solver(d, V, groups, mu)
-            X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 30))
-            drag = max(np.linalg.norm(X[parts["fingers"][j]] - V[parts["fingers"][j]], axis=1).max() for j in (0, 2, 3)) / size
-            tip = groups[3]; miss = np.linalg.norm(X[tip] - (V[tip] @ T[3][:3, :3].T + T[3][:3, 3]), axis=1).max() / 0.09
-            line.append(f"mu{mu:g} {100*drag:.2f}/{100*miss:.1f}")
-        print(f"cells {cells} B{s.nbrace}: " + "  ".join(line), flush=True)
+            print(f"mu {mu:g} braces {s.nbrace}: wrist 90 fingers off {100*np.linalg.norm(X[fingers]-ref,axis=1).max()/size:.2f}%", flush=True)
+    elif sys.argv[1] == "comb":
+        for h in tt.SWEEP_SIZES:
+            V, F, tine_ids, _ = tt.comb(gap=0.1 * h); groups, T = tt.comb_pose(V, tine_ids, moved=1)
+            d = larap.Deformer(V, F, cell_size=h, weights="trilinear"); d.set_handle_groups(groups)
+            line = []
+            for mu in mus:
+                lat, s = solver(d, V, groups, mu)
+                X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 30))
+                drag = max(np.linalg.norm(X[tine_ids[t]] - V[tine_ids[t]], axis=1).max() / diagonal(V) for t in (0, 2))
+                miss = np.linalg.norm(X[groups[2]] - tt.apply(T[2], V[groups[2]]), axis=1).max() / 6.0
+                line.append(f"mu{mu:g} {100*drag:.2f}/{100*miss:.1f}")
+            print(f"h {h} B{s.nbrace}: " + "  ".join(line), flush=True)
+    else:
+        turned = float(sys.argv[3]) if len(sys.argv) > 3 else 0.0
+        V, F, parts = shapes.character(); groups, T = tj.finger_pose(V, parts); size = tj.hand_size(V, parts)
+        if turned: V, T = tj.turned_about_vertical(V, T, turned)
+        for cells in tj.CHARACTER_CELLS:
+            d = larap.Deformer(V, F, weights="trilinear", cells=cells); d.set_handle_groups(groups)
+            line = []
+            for mu in mus:
+                lat, s = solver(d, V, groups, mu)
+                X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 30))
+                drag = max(np.linalg.norm(X[parts["fingers"][j]] - V[parts["fingers"][j]], axis=1).max() for j in (0, 2, 3)) / size
+                tip = groups[3]; miss = np.linalg.norm(X[tip] - (V[tip] @ T[3][:3, :3].T + T[3][:3, 3]), axis=1).max() / 0.09
+                line.append(f"mu{mu:g} {100*drag:.2f}/{100*miss:.1f}")
+            print(f"cells {cells} B{s.nbrace}: " + "  ".join(line), flush=True)

@@ -1,6 +1,7 @@
 """Issue 9, session 30: where separate parts meet, one cell copy per branch (a reference solver on
-the engine's own lattice). Research code, not used by the engine or the add-on. **Not kept**: the
-neighbours' drag goes only with the finger's hold on its palm (scripts/experiments/README.md).
+the engine's own lattice). Research code, not used by the engine or the add-on. Split alone, the
+neighbours' drag goes with the finger's hold on its palm; with `--anchor --couple 10` both hold on
+the character in this solver (figures and limits: scripts/experiments/README.md). Not in the engine.
 
 Where fingers pushed into a palm leave it, the engine's lattice holds the palm's end and the roots
 of every finger in a cell in one copy (its piece is connected through the palm), and copies of the
@@ -18,7 +19,9 @@ so that the nodes beyond the palm belong to one finger each:
    and a branch's *exposed* material is what of it lies outside the trunk.
 2. Sides. A node is on the branches' side when, over the copies around it, some exposed branch
    material lies closer to it than `kappa` times the nearest trunk material (dB < kappa dT).
-   `--face`: every copy to be split keeps the face most on the trunk's side (the least dT / dB).
+   `--face`: every copy to be split keeps the face most on the trunk's side (the least dT / dB);
+   `--anchor`: every copy to be split keeps at least its corner most on the trunk's side (a ball
+   joint: the branch's translation held).
 3. Copies. A copy that holds trunk and exposed branch material and has a node on the branches'
    side is split: the trunk keeps the copy, each exposed branch gets a copy of its own (that
    part's vertices bind there). A copy of two or more branches and no trunk is split per branch.
@@ -29,7 +32,10 @@ so that the nodes beyond the palm belong to one finger each:
 Weights: a trunk copy weighs its trunk's share of the cell, a branch copy its branch's and the
 trunk's (at least 1/24); `--whole-weights`: every copy weighs what its cell did.
 `--branch-brace MU`: each node of a branch's own held by a brace (as the engine's junction braces)
-to the straight extension of the trunk-side node next to it.
+to the straight extension of the trunk-side node next to it. `--couple LAMBDA`: each branch copy's
+rotation answers for the edges of the copy it was split from too, at LAMBDA times that copy's
+weight (`coupled_terms`): a branch without handles turns with its trunk, and the energy is still
+one (zero at rest and under rigid motions; flip-flops never increase it).
 
 The energy and solve are the engine's (arap_variants.Solver: one rotation per cell copy, gamma
 0.03, the junction braces of junction_brace.py at the engine's default weight, trilinear, 30
@@ -41,6 +47,7 @@ fingertip handles: a finger must follow its palm).
 Run from the repository root (figures: scripts/experiments/README.md; about 15 s per lattice):
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --angles 15,30,45 --compare
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --angles 30,45 --cells 4000,8000 --follow --iterations 200 --compare
+  PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --samples 16 --anchor --couple 10
 """
 import argparse
 import sys
@@ -65,6 +72,7 @@ from larap import shapes  # noqa: E402
 MIN_WEIGHT = 1.0 / 24  # a copy's least weight (the engine's floor at its default split_resolution)
 WHOLE = False  # a split copy weighs as its cell did (else its material share)
 FACE = False  # every split copy keeps a face on the trunk's side
+ANCHOR = False  # every split copy keeps at least one corner on the trunk's side
 BRACE = 100.0  # junction_brace.py's mu matching the engine's default junction_brace = 50 (its README)
 
 
@@ -190,9 +198,13 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
         if dB < kappa * dT:
             trunk_at[n] = t
             ratio[n] = dT / dB
-    # Each copy to be split keeps at least one face on the trunk's side (the face most on it), so
-    # that every branch stays held by its trunk through a face (not a corner or an edge).
+    # --anchor: each copy to be split keeps at least one corner on the trunk's side; --face: the
+    # whole face most on it, so that every branch is held by its trunk through a face.
     for X, (pts, within, exposed, _, _) in material.items():
+        if ANCHOR and exposed and within[: m ** 3].any():  # at least one corner: a ball joint
+            corners = lat.cells[X]
+            if all(n in trunk_at for n in corners):
+                trunk_at.pop(min(corners, key=lambda n: ratio.get(n, 0.0)), None)
         if not (FACE and exposed and within[: m ** 3].any()):
             continue
         corners = lat.cells[X]
@@ -208,6 +220,7 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
     w = lat.d.cell_weights()
     weight = list(w) if len(w) else [1.0] * len(cells)
     weight0 = list(weight)
+    pairs = []  # (branch copy, the copy it was split from: its trunk's)
     vcell = lat.vcell.copy()
     label = {}
     split = 0
@@ -218,6 +231,7 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
         label[len(cells) - 1] = b
         weight.append(weight0[X] if WHOLE else max(share, MIN_WEIGHT))
         vcell[np.flatnonzero((lat.vcell == X) & (part_of == b))] = len(cells) - 1
+        pairs.append((len(cells) - 1, X))
 
     for X, (pts, within, exposed, masks, trunk) in material.items():
         on_side = any(n in trunk_at for n in lat.cells[X])
@@ -272,6 +286,7 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
     lat.tri_ids, lat.tri_w = lat.trilinear_rows(lat.vcell, lat.V)
     lat.edges = lat.rest_all = lat.coords = lat._bs = None  # the engine's, no longer this lattice's
     lat.branch_nodes = set(renumber[list(own.values())].tolist())
+    lat.branch_pairs = pairs
     return np.array(weight), split, len(trunk_at)
 
 
@@ -301,11 +316,36 @@ def branch_braces(lat):
     return sorted(rows)
 
 
+def coupled_terms(lam):
+    """arap_variants.terms, plus for each branch copy b split from copy t: t's 12 edges once more,
+    weighing lam times t's weight, with b's rotation. A branch's rotation then answers for its
+    trunk's edges too, so a branch without handles turns with its trunk and one turned by its
+    handles turns the trunk's copy only as far as lam asks; still an energy (zero at rest and under
+    a rigid motion, the local step fits each rotation to all its terms), so flip-flops decrease it."""
+    base = av.terms
+
+    def terms(lat, rotations, cw, floor, edge_w):
+        i, k, w, r, nrot = base(lat, rotations, cw, floor, edge_w)
+        extra = [(lat.cells[t][a], lat.cells[t][c], lam * max(cw[t, q], floor), b)
+                 for b, t in getattr(lat, "branch_pairs", []) for q, (a, c) in enumerate(av.CELL_EDGES)]
+        if lam <= 0 or not extra:
+            return i, k, w, r, nrot
+        e = np.array(extra)
+        return (np.concatenate([i, e[:, 0].astype(np.int64)]), np.concatenate([k, e[:, 1].astype(np.int64)]),
+                np.concatenate([w, e[:, 2]]), np.concatenate([r, e[:, 3].astype(np.int64)]), nrot)
+    return terms
+
+
 class BranchBraced(jb.Braced):
     """The engine's energy with junction braces and, at `mu_branch`, the branch braces."""
 
-    def __init__(self, lat, rows_h, alpha, mu, mu_branch, **kw):
-        super().__init__(lat, rows_h, alpha, mu, **kw)
+    def __init__(self, lat, rows_h, alpha, mu, mu_branch, couple=0.0, **kw):
+        plain = av.terms
+        av.terms = coupled_terms(couple)  # av.Solver reads its module's terms()
+        try:
+            super().__init__(lat, rows_h, alpha, mu, **kw)
+        finally:
+            av.terms = plain
         R = branch_braces(lat) if mu_branch > 0 and hasattr(lat, "branch_nodes") else []
         self.nbranch = len(R)
         if R:
@@ -341,7 +381,7 @@ class Case:
         self.groups, self.turn, self.gap = groups, turn, finger_gap
         self.d = larap.Deformer(self.V, self.F, weights="trilinear", cells=cells)
         self.solids = Solids(self.V, self.F)
-        self.mu_branch = 0.0
+        self.mu_branch = self.couple = 0.0
         H = self.V[self.parts["hand"]]  # the right hand: where the pose asks for it (saves time)
         self.region = (H.min(0), H.max(0))
 
@@ -355,7 +395,7 @@ class Case:
             w = self.d.cell_weights()
             w = w if len(w) else np.ones(len(lat.cells))
         rows, alpha = av.group_alpha(self.groups)
-        s = BranchBraced(lat, rows, alpha, BRACE, self.mu_branch, gamma=0.03, rotations="cell", floor=1e-9,
+        s = BranchBraced(lat, rows, alpha, BRACE, self.mu_branch, self.couple, gamma=0.03, rotations="cell", floor=1e-9,
                          cw=np.repeat(np.asarray(w, float)[:, None], 12, 1))
         info += f" ({s.nbranch} branch braces)" if getattr(s, "nbranch", 0) else ""
         return av.transfer(lat, s.solve(av.group_targets(self.V, self.groups, self.T), iterations)), info
@@ -394,17 +434,19 @@ def main():
     ap.add_argument("--compare", action="store_true", help="the engine's lattice too, in the same solver")
     ap.add_argument("--branch-brace", type=float, default=0.0, help="mu of the branch braces (0: none)")
     ap.add_argument("--face", action="store_true", help="every split copy keeps a face on the trunk's side")
+    ap.add_argument("--anchor", action="store_true", help="every split copy keeps a corner on the trunk's side")
+    ap.add_argument("--couple", type=float, default=0.0, help="branch rotations answer for their trunk's edges (lambda)")
     ap.add_argument("--whole-weights", action="store_true", help="split copies weigh as their cell did")
     a = ap.parse_args()
-    global FACE, WHOLE
-    FACE, WHOLE = a.face, a.whole_weights
+    global FACE, WHOLE, ANCHOR
+    FACE, WHOLE, ANCHOR = a.face, a.whole_weights, a.anchor
     kinds = ([("engine", False)] if a.compare else []) + [("per branch", True)]
     worst = {k: [] for k, _ in kinds}
     turned = a.wrist or a.follow
     for turn in [float(x) for x in a.angles.split(",")]:
         for cells in [int(c) for c in a.cells.split(",")]:
             case = Case(turn, cells, a.finger_gap, a.palm_part, a.wrist, a.follow)
-            case.mu_branch = a.branch_brace
+            case.mu_branch, case.couple = a.branch_brace, a.couple
             line = []
             for name, per_branch in kinds:
                 X, info = case.solve(per_branch, a.kappa, a.samples, a.iterations)

@@ -48,6 +48,7 @@ Run from the repository root (figures: scripts/experiments/README.md; about 15 s
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --angles 15,30,45 --compare
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --angles 30,45 --cells 4000,8000 --follow --iterations 200 --compare
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --samples 16 --anchor --couple 10
+  PYTHONPATH=python /usr/bin/python3 scripts/experiments/branch_copies.py --comb --anchor --couple 10 [--follow]
 """
 import argparse
 import sys
@@ -197,7 +198,7 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
                 dB = min(dB, np.linalg.norm(pts[e] - p, axis=1).min())
         if dB < kappa * dT:
             trunk_at[n] = t
-            ratio[n] = dT / dB
+            ratio[n] = dT / dB if dB > 0 else np.inf
     # --anchor: each copy to be split keeps at least one corner on the trunk's side; --face: the
     # whole face most on it, so that every branch is held by its trunk through a face.
     for X, (pts, within, exposed, _, _) in material.items():
@@ -419,6 +420,43 @@ class Case:
         return 100 * drag, 100 * miss, 100 * stretch, 100 * off
 
 
+def comb_sweep(follow, kappa=2.0, samples=16, couple=10.0):
+    """test_topology's comb (a base with three separate tines pushed into it) at its 17 cell sizes,
+    the engine's lattice and the per-branch one (anchored, coupled) in the same solver: the
+    neighbours' drag (% of the diagonal) with the middle tine turned, or (follow) the tines' distance
+    from the base's rigid turn, the base alone turned 90 degrees about y and the tines free."""
+    import test_topology as tt
+    from larap.quality import diagonal
+    out = {"engine": [], "per branch": []}
+    for h in tt.SWEEP_SIZES:
+        V, F, tines, _ = tt.comb(gap=0.1 * h)
+        groups, T = tt.comb_pose(V, tines, moved=1)
+        if follow:
+            groups, T = [groups[0]], np.stack([affine(rotation([0, 1, 0], -90.0), pivot=(-3.0, 0.0, 0.5))])
+        d = larap.Deformer(V, F, cell_size=h, weights="trilinear")
+        line = []
+        for name in out:
+            lat = av.Lat(d, V)
+            if name == "engine":
+                w = d.cell_weights()
+                w = w if len(w) else np.ones(len(lat.cells))
+            else:
+                w = split_per_branch(lat, Solids(V, F), kappa, samples)[0]
+            rows, alpha = av.group_alpha(groups)
+            s = BranchBraced(lat, rows, alpha, BRACE, 0.0, couple if name != "engine" else 0.0, gamma=0.03,
+                             rotations="cell", floor=1e-9, cw=np.repeat(np.asarray(w, float)[:, None], 12, 1))
+            X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 200 if follow else 30))
+            if follow:
+                t = np.concatenate(tines)
+                v = np.linalg.norm(X[t] - tt.apply(T[0], V[t]), axis=1).max() / diagonal(V)
+            else:
+                v = max(np.linalg.norm(X[tines[k]] - V[tines[k]], axis=1).max() for k in (0, 2)) / diagonal(V)
+            out[name].append(100 * v)
+            line.append(f"{name}: {100 * v:5.2f}%")
+        print(f"h {h:4.2f} | " + " | ".join(line), flush=True)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--angles", default="0,15,30,45")
@@ -437,9 +475,16 @@ def main():
     ap.add_argument("--anchor", action="store_true", help="every split copy keeps a corner on the trunk's side")
     ap.add_argument("--couple", type=float, default=0.0, help="branch rotations answer for their trunk's edges (lambda)")
     ap.add_argument("--whole-weights", action="store_true", help="split copies weigh as their cell did")
+    ap.add_argument("--comb", action="store_true", help="test_topology's comb instead (with --anchor --couple; "
+                    "--follow: the base turned, the tines free)")
     a = ap.parse_args()
     global FACE, WHOLE, ANCHOR
     FACE, WHOLE, ANCHOR = a.face, a.whole_weights, a.anchor
+    if a.comb:
+        for name, v in comb_sweep(a.follow, a.kappa, a.samples, a.couple).items():
+            v = np.array(v)
+            print(f"{name}: {(v <= 1.0).sum()} of {len(v)} within 1%, median {np.median(v):.2f}%, worst {v.max():.2f}%")
+        return
     kinds = ([("engine", False)] if a.compare else []) + [("per branch", True)]
     worst = {k: [] for k, _ in kinds}
     turned = a.wrist or a.follow

@@ -90,6 +90,7 @@ class Solids:
         self.tris = [tris[self.part_of[tris[:, 0]] == p] for p in range(self.part_of.max() + 1)]
         self.lo = np.array([self.V[np.unique(t)].min(0) for t in self.tris])
         self.hi = np.array([self.V[np.unique(t)].max(0) for t in self.tris])
+        self.tests = [av.winding_inside(self.V, t) for t in self.tris]
         self.volume = np.array([abs(np.einsum("ij,ij->i", self.V[t[:, 0]], np.cross(self.V[t[:, 1]], self.V[t[:, 2]]))
                                     .sum()) / 6 for t in self.tris])
 
@@ -98,23 +99,11 @@ class Solids:
         return np.flatnonzero(np.all(self.lo <= hi, 1) & np.all(self.hi >= lo, 1))
 
     def inside(self, p, P):
-        """(n,) the points P inside part p."""
+        """(n,) the points P inside part p (arap_variants' winding number, on those in its box)."""
         out = np.zeros(len(P), bool)
         box = np.all((P >= self.lo[p]) & (P <= self.hi[p]), 1)
-        if not box.any():
-            return out
-        Q, t = P[box], self.tris[p]
-        A, B, C = self.V[t[:, 0]], self.V[t[:, 1]], self.V[t[:, 2]]
-        w = np.zeros(len(Q))
-        for s in range(0, len(Q), 512):
-            q = Q[s:s + 512, None, :]
-            a, b, c = A[None] - q, B[None] - q, C[None] - q
-            la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-            det = np.einsum("ijk,ijk->ij", a, np.cross(b, c))
-            den = (la * lb * lc + np.einsum("ijk,ijk->ij", a, b) * lc + np.einsum("ijk,ijk->ij", b, c) * la
-                   + np.einsum("ijk,ijk->ij", c, a) * lb)
-            w[s:s + 512] = np.arctan2(det, den).sum(1) / (2 * np.pi)
-        out[box] = np.abs(w) > 0.5
+        if box.any():
+            out[box] = self.tests[p](P[box])
         return out
 
 

@@ -359,9 +359,16 @@ def best_rotations(S):
 
 class Solver:
     def __init__(self, lat: Lat, handle_rows, alpha, gamma=0.1, rotations="node", cw=None, floor=1e-3,
-                 edge_w=None):
+                 edge_w=None, extra_terms=None, fixed=()):
+        """extra_terms: a function (i, k, w, r, cw) -> (i, k, w, r) of terms to add to those of
+        `rotations` (cw: the (C, 12) copy-edge weights as floored); fixed: (mu, G) pairs, each adding
+        mu * gamma_eff * |G x|^2 (a fixed quadratic: braces, glues) to the system before it is
+        factorised."""
         self.lat = lat
         self.i, self.k, self.w, self.r, self.nrot = terms(lat, rotations, cw, floor, edge_w)
+        if extra_terms is not None:
+            cwf = np.maximum(np.ones((len(lat.cells), 12)) if cw is None else cw, floor)
+            self.i, self.k, self.w, self.r = extra_terms(self.i, self.k, self.w, self.r, cwf)
         self.e = lat.rest[self.i] - lat.rest[self.k]
         self.geff = gamma * lat.s ** 2 / (lat.h ** 2 * self.w.sum())
         n = lat.nr
@@ -376,7 +383,9 @@ class Solver:
         self.alpha = alpha
         A = sp.diags(alpha)
         M = self.geff * Lw + (self.B.T @ A @ self.B)
-        self.M = M  # the system matrix, for variants that add a fixed quadratic
+        for mu, G in fixed:
+            M = M + mu * self.geff * (G.T @ G)
+        self.M = M  # the system matrix
         # components without handles stay at rest (as the engine does)
         self.solve_lin = spla.factorized(sp.csc_matrix(M))
         self.BtA = (self.B.T @ A).tocsr()

@@ -55,7 +55,6 @@ import sys
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from scipy import ndimage
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
@@ -71,9 +70,6 @@ import larap  # noqa: E402
 from larap import shapes  # noqa: E402
 
 MIN_WEIGHT = 1.0 / 24  # a copy's least weight (the engine's floor at its default split_resolution)
-WHOLE = False  # a split copy weighs as its cell did (else its material share)
-FACE = False  # every split copy keeps a face on the trunk's side
-ANCHOR = False  # every split copy keeps at least one corner on the trunk's side
 BRACE = 100.0  # junction_brace.py's mu matching the engine's default junction_brace = 50 (its README)
 
 
@@ -163,9 +159,11 @@ def copy_material(lat, solids, m, region=None):
     return material
 
 
-def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
+def split_per_branch(lat, solids, kappa=2.0, m=24, region=None, hold="none", whole=False):
     """Changes `lat` (an arap_variants.Lat) in place as the module's docstring says; returns the
-    copies' weights (C,), the number of copies split and of nodes on the branches' side."""
+    copies' weights (C,), the number of copies split and of nodes on the branches' side. hold:
+    "anchor" or "face", what of each copy to be split stays on the trunk's side (--anchor, --face);
+    whole: split copies weigh what their cell did (--whole-weights)."""
     material = copy_material(lat, solids, m, region)
     part_of = solids.part_of
     users = {}
@@ -190,14 +188,15 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
             ratio[n] = dT / dB if dB > 0 else np.inf
     # --anchor: each copy to be split keeps at least one corner on the trunk's side; --face: the
     # whole face most on it, so that every branch is held by its trunk through a face.
+    grid = slice(0, m ** 3)  # a copy's samples (its vertices follow)
     for X, (pts, within, exposed, _, _) in material.items():
-        if ANCHOR and exposed and within[: m ** 3].any():  # at least one corner: a ball joint
-            corners = lat.cells[X]
-            if all(n in trunk_at for n in corners):
-                trunk_at.pop(min(corners, key=lambda n: ratio.get(n, 0.0)), None)
-        if not (FACE and exposed and within[: m ** 3].any()):
+        if hold == "none" or not (exposed and within[grid].any()):
             continue
         corners = lat.cells[X]
+        if hold == "anchor":  # at least one corner: a ball joint
+            if all(n in trunk_at for n in corners):
+                trunk_at.pop(min(corners, key=lambda n: ratio.get(n, 0.0)), None)
+            continue
         faces = [[q for q in range(8) if (q >> axis & 1) == side] for axis in range(3) for side in (0, 1)]
         if any(all(corners[q] not in trunk_at for q in f) for f in faces):
             continue
@@ -219,17 +218,16 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
         cells.append(list(lat.cells[X]))
         coords.append(coords[X])
         label[len(cells) - 1] = b
-        weight.append(weight0[X] if WHOLE else max(share, MIN_WEIGHT))
+        weight.append(weight0[X] if whole else max(share, MIN_WEIGHT))
         vcell[np.flatnonzero((lat.vcell == X) & (part_of == b))] = len(cells) - 1
         pairs.append((len(cells) - 1, X))
 
     for X, (pts, within, exposed, masks, trunk) in material.items():
         on_side = any(n in trunk_at for n in lat.cells[X])
-        grid = slice(0, m ** 3)
         if exposed and on_side and within[grid].any():
             split += 1
             label[X] = trunk
-            if not WHOLE:
+            if not whole:
                 weight[X] = max(within[grid].mean(), MIN_WEIGHT)
             for b in exposed:
                 add_copy(X, b, (masks[b] | within)[grid].mean())
@@ -237,7 +235,7 @@ def split_per_branch(lat, solids, kappa=2.0, m=24, region=None):
             split += 1
             first, *rest = sorted(exposed)
             label[X] = first
-            if not WHOLE:
+            if not whole:
                 weight[X] = max(masks[first][grid].mean(), MIN_WEIGHT)
             for b in rest:
                 add_copy(X, b, masks[b][grid].mean())
@@ -306,48 +304,42 @@ def branch_braces(lat):
     return sorted(rows)
 
 
-def coupled_terms(lam):
-    """arap_variants.terms, plus for each branch copy b split from copy t: t's 12 edges once more,
+def coupled_terms(lat, lam):
+    """An av.Solver extra_terms: for each branch copy b split from copy t, t's 12 edges once more,
     weighing lam times t's weight, with b's rotation. A branch's rotation then answers for its
     trunk's edges too, so a branch without handles turns with its trunk and one turned by its
     handles turns the trunk's copy only as far as lam asks; still an energy (zero at rest and under
-    a rigid motion, the local step fits each rotation to all its terms), so flip-flops decrease it."""
-    base = av.terms
+    a rigid motion, the local step fits each rotation to all its terms), so flip-flops decrease it.
+    (They count in gamma_eff's normalisation: 2% at lam = 10 on the character.)"""
+    def extra(i, k, w, r, cw):
+        pairs = getattr(lat, "branch_pairs", [])
+        if lam <= 0 or not pairs:
+            return i, k, w, r
+        b, t = np.array(pairs).T
+        q = np.arange(12)
+        a, c = np.array(av.CELL_EDGES).T
+        return (np.concatenate([i, lat.cells[t][:, a].ravel()]), np.concatenate([k, lat.cells[t][:, c].ravel()]),
+                np.concatenate([w, lam * cw[t][:, q].ravel()]), np.concatenate([r, np.repeat(b, 12)]))
+    return extra
 
-    def terms(lat, rotations, cw, floor, edge_w):
-        i, k, w, r, nrot = base(lat, rotations, cw, floor, edge_w)
-        extra = [(lat.cells[t][a], lat.cells[t][c], lam * max(cw[t, q], floor), b)
-                 for b, t in getattr(lat, "branch_pairs", []) for q, (a, c) in enumerate(av.CELL_EDGES)]
-        if lam <= 0 or not extra:
-            return i, k, w, r, nrot
-        e = np.array(extra)
-        return (np.concatenate([i, e[:, 0].astype(np.int64)]), np.concatenate([k, e[:, 1].astype(np.int64)]),
-                np.concatenate([w, e[:, 2]]), np.concatenate([r, e[:, 3].astype(np.int64)]), nrot)
-    return terms
+
+def branch_brace_matrix(lat):
+    """The rows of branch_braces as a sparse (K, N) matrix (None when there are none)."""
+    R = branch_braces(lat) if hasattr(lat, "branch_nodes") else []
+    if not R:
+        return None
+    return sp.csr_matrix((np.tile([1.0, -2.0, 1.0], len(R)), (np.repeat(np.arange(len(R)), 3), np.array(R).ravel())),
+                         shape=(len(R), lat.nr))
 
 
-class BranchBraced(jb.Braced):
-    """The engine's energy with junction braces and, at `mu_branch`, the branch braces."""
-
-    def __init__(self, lat, rows_h, alpha, mu, mu_branch, couple=0.0, **kw):
-        plain = av.terms
-        av.terms = coupled_terms(couple)  # av.Solver reads its module's terms()
-        try:
-            super().__init__(lat, rows_h, alpha, mu, **kw)
-        finally:
-            av.terms = plain
-        R = branch_braces(lat) if mu_branch > 0 and hasattr(lat, "branch_nodes") else []
-        self.nbranch = len(R)
-        if R:
-            G = sp.csr_matrix((np.tile([1.0, -2.0, 1.0], len(R)), (np.repeat(np.arange(len(R)), 3), np.array(R).ravel())),
-                              shape=(len(R), lat.nr))
-            M = self.M + mu_branch * self.geff * (G.T @ G)
-            if self.nbrace:
-                Rj = jb.brace_rows(lat)
-                Gj = sp.csr_matrix((np.tile([1.0, -2.0, 1.0], len(Rj)),
-                                    (np.repeat(np.arange(len(Rj)), 3), np.array(Rj).ravel())), shape=(len(Rj), lat.nr))
-                M = M + mu * self.geff * (Gj.T @ Gj)
-            self.solve_lin = spla.factorized(sp.csc_matrix(M))
+def solver(lat, groups, w, couple=0.0, mu_branch=0.0):
+    """The engine's energy on `lat` (junction braces at BRACE), with the branch copies' coupling
+    at `couple` and the branch braces at `mu_branch` (0: none)."""
+    rows, alpha = av.group_alpha(groups)
+    G = branch_brace_matrix(lat) if mu_branch > 0 else None
+    return jb.Braced(lat, rows, alpha, BRACE, gamma=0.03, rotations="cell", floor=1e-9,
+                     cw=np.repeat(np.asarray(w, float)[:, None], 12, 1), extra_terms=coupled_terms(lat, couple),
+                     fixed=[(mu_branch, G)] if G is not None else [])
 
 
 class Case:
@@ -371,7 +363,8 @@ class Case:
         self.groups, self.turn, self.gap = groups, turn, finger_gap
         self.d = larap.Deformer(self.V, self.F, weights="trilinear", cells=cells)
         self.solids = Solids(self.V, self.F)
-        self.mu_branch = self.couple = 0.0
+        self.mu_branch = self.couple = 0.0  # the options of solver() and split_per_branch()
+        self.hold, self.whole = "none", False
         H = self.V[self.parts["hand"]]  # the right hand: where the pose asks for it (saves time)
         self.region = (H.min(0), H.max(0))
 
@@ -379,15 +372,12 @@ class Case:
         lat = av.Lat(self.d, self.V)
         info = ""
         if per_branch:
-            w, split, side = split_per_branch(lat, self.solids, kappa, samples, self.region)
+            w, split, side = split_per_branch(lat, self.solids, kappa, samples, self.region, self.hold, self.whole)
             info = f" ({split} split, {side} nodes)"
         else:
             w = self.d.cell_weights()
             w = w if len(w) else np.ones(len(lat.cells))
-        rows, alpha = av.group_alpha(self.groups)
-        s = BranchBraced(lat, rows, alpha, BRACE, self.mu_branch, self.couple, gamma=0.03, rotations="cell", floor=1e-9,
-                         cw=np.repeat(np.asarray(w, float)[:, None], 12, 1))
-        info += f" ({s.nbranch} branch braces)" if getattr(s, "nbranch", 0) else ""
+        s = solver(lat, self.groups, w, self.couple if per_branch else 0.0, self.mu_branch if per_branch else 0.0)
         return av.transfer(lat, s.solve(av.group_targets(self.V, self.groups, self.T), iterations)), info
 
     def figures(self, X):
@@ -409,7 +399,7 @@ class Case:
         return 100 * drag, 100 * miss, 100 * stretch, 100 * off
 
 
-def comb_sweep(follow, kappa=2.0, samples=16, couple=10.0):
+def comb_sweep(follow, kappa=2.0, samples=16, couple=10.0, hold="anchor"):
     """test_topology's comb (a base with three separate tines pushed into it) at its 17 cell sizes,
     the engine's lattice and the per-branch one (anchored, coupled) in the same solver: the
     neighbours' drag (% of the diagonal) with the middle tine turned, or (follow) the tines' distance
@@ -430,10 +420,8 @@ def comb_sweep(follow, kappa=2.0, samples=16, couple=10.0):
                 w = d.cell_weights()
                 w = w if len(w) else np.ones(len(lat.cells))
             else:
-                w = split_per_branch(lat, Solids(V, F), kappa, samples)[0]
-            rows, alpha = av.group_alpha(groups)
-            s = BranchBraced(lat, rows, alpha, BRACE, 0.0, couple if name != "engine" else 0.0, gamma=0.03,
-                             rotations="cell", floor=1e-9, cw=np.repeat(np.asarray(w, float)[:, None], 12, 1))
+                w = split_per_branch(lat, Solids(V, F), kappa, samples, hold=hold)[0]
+            s = solver(lat, groups, w, couple if name != "engine" else 0.0)
             X = av.transfer(lat, s.solve(av.group_targets(V, groups, T), 200 if follow else 30))
             if follow:
                 t = np.concatenate(tines)
@@ -460,17 +448,17 @@ def main():
     pose.add_argument("--follow", action="store_true", help="the palm alone turned 90 deg, the fingers free")
     ap.add_argument("--compare", action="store_true", help="the engine's lattice too, in the same solver")
     ap.add_argument("--branch-brace", type=float, default=0.0, help="mu of the branch braces (0: none)")
-    ap.add_argument("--face", action="store_true", help="every split copy keeps a face on the trunk's side")
-    ap.add_argument("--anchor", action="store_true", help="every split copy keeps a corner on the trunk's side")
+    hold = ap.add_mutually_exclusive_group()
+    hold.add_argument("--face", action="store_true", help="every split copy keeps a face on the trunk's side")
+    hold.add_argument("--anchor", action="store_true", help="every split copy keeps a corner on the trunk's side")
     ap.add_argument("--couple", type=float, default=0.0, help="branch rotations answer for their trunk's edges (lambda)")
     ap.add_argument("--whole-weights", action="store_true", help="split copies weigh as their cell did")
     ap.add_argument("--comb", action="store_true", help="test_topology's comb instead (with --anchor --couple; "
                     "--follow: the base turned, the tines free)")
     a = ap.parse_args()
-    global FACE, WHOLE, ANCHOR
-    FACE, WHOLE, ANCHOR = a.face, a.whole_weights, a.anchor
+    hold = "face" if a.face else "anchor" if a.anchor else "none"
     if a.comb:
-        for name, v in comb_sweep(a.follow, a.kappa, a.samples, a.couple).items():
+        for name, v in comb_sweep(a.follow, a.kappa, a.samples, a.couple, hold).items():
             v = np.array(v)
             print(f"{name}: {(v <= 1.0).sum()} of {len(v)} within 1%, median {np.median(v):.2f}%, worst {v.max():.2f}%")
         return
@@ -480,7 +468,7 @@ def main():
     for turn in [float(x) for x in a.angles.split(",")]:
         for cells in [int(c) for c in a.cells.split(",")]:
             case = Case(turn, cells, a.finger_gap, a.palm_part, a.wrist, a.follow)
-            case.mu_branch, case.couple = a.branch_brace, a.couple
+            case.mu_branch, case.couple, case.hold, case.whole = a.branch_brace, a.couple, hold, a.whole_weights
             line = []
             for name, per_branch in kinds:
                 X, info = case.solve(per_branch, a.kappa, a.samples, a.iterations)

@@ -11,7 +11,7 @@ Run from the repository root:
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/junction_brace.py comb 0,100    # tests' comb sweep
   PYTHONPATH=python /usr/bin/python3 scripts/experiments/junction_brace.py char 0,100 [TURNED_DEGREES]
 Figures (trilinear, 30 flip-flops) in scripts/experiments/README.md."""
-import sys, numpy as np, scipy.sparse as sp, scipy.sparse.linalg as spla
+import sys, numpy as np, scipy.sparse as sp
 sys.path.insert(0, "tests/python"); sys.path.insert(0, "python"); sys.path.insert(0, "scripts/experiments")
 import larap
 from larap import shapes
@@ -45,14 +45,12 @@ def brace_rows(lat):
     return sorted(rows)
 
 class Braced(av.Solver):
-    def __init__(self, lat, rows_h, alpha, mu, **kw):
-        super().__init__(lat, rows_h, alpha, **kw)
+    def __init__(self, lat, rows_h, alpha, mu, fixed=(), **kw):
         R = brace_rows(lat); self.nbrace = len(R)
         if R:
             I = np.repeat(np.arange(len(R)), 3); J = np.array(R).ravel(); W = np.tile([1.0, -2.0, 1.0], len(R))
-            G = sp.csr_matrix((W, (I, J)), shape=(len(R), lat.nr))
-            M = self.M + mu * self.geff * (G.T @ G)
-            self.solve_lin = spla.factorized(sp.csc_matrix(M))
+            fixed = [(mu, sp.csr_matrix((W, (I, J)), shape=(len(R), lat.nr)))] + list(fixed)
+        super().__init__(lat, rows_h, alpha, fixed=fixed, **kw)
 
 def solver(d, V, groups, mu):
     lat = av.Lat(d, V); rows, alpha = av.group_alpha(groups)

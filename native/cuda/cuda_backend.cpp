@@ -152,6 +152,7 @@ void CudaBackend::write_profile(const char* what, int iterations,
 std::unique_ptr<Backend> make_cuda_backend(const Lattice& lattice, const RowMatrixX3d& vertices) {
   std::string why;
   if (!cuda_available(&why)) throw DeviceError("device 'cuda' is not available: " + why);
+  if (!lattice.couplings.empty()) throw DeviceError("the CUDA backend does not take branch couplings yet");
   return std::make_unique<CudaBackend>(lattice, vertices);
 }
 

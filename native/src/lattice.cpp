@@ -10,6 +10,7 @@
 #include <limits>
 #include <numeric>
 #include <string>
+#include <unordered_map>
 
 #include "cell_pieces.h"
 #include "disjoint_sets.h"
@@ -62,6 +63,7 @@ class LatticeAssembly {
                       const std::vector<uint8_t>& marks, const CellPieces& pieces,
                       const std::vector<int64_t>& vertex_cells);
   static Lattice coarse(const Lattice& finer, std::vector<int32_t>* parent);
+  static Lattice from_copies(const Lattice& grid, const LatticeCopies& copies);
 
  private:
   static Lattice start(const Eigen::Vector3d& origin, double h, const Eigen::Vector3i& dims,
@@ -185,12 +187,17 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
   // sum over cell copies of their 12 edges (docs/method.md), so an edge inside the lattice (4
   // cells) weighs 2, one on the surface 1 or 0.5, and the Laplacian's factor 2 g w_ij is g times
   // the sum over its copies.
+  // A branch coupling counts its trunk copy's 12 edges once more, at the coupling's weight.
   const bool weighted = !lat.cell_weight.empty();
   std::vector<int32_t> count(size_t(nn) + 1, 0);
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q)
       for (int a = 0; a < 3; ++a)
         if (!((q >> a) & 1)) ++count[lat.cell_nodes[c][q] + 1];
+  for (const Coupling& k : lat.couplings)
+    for (int q = 0; q < 8; ++q)
+      for (int a = 0; a < 3; ++a)
+        if (!((q >> a) & 1)) ++count[lat.cell_nodes[size_t(k.trunk)][q] + 1];
   for (int64_t i = 0; i < nn; ++i) count[i + 1] += count[i];
   struct Up {
     int32_t axis, upper;
@@ -206,6 +213,12 @@ void LatticeAssembly::finish(Lattice& lat, DisjointSets& slots) {
           if (!((q >> a) & 1))
             up[size_t(fill[lat.cell_nodes[c][q]]++)] = {a, lat.cell_nodes[c][q | (1 << a)],
                                                        weighted ? lat.cell_weight[c] : 1.0};
+    for (const Coupling& k : lat.couplings) {
+      const auto& t = lat.cell_nodes[size_t(k.trunk)];
+      for (int q = 0; q < 8; ++q)
+        for (int a = 0; a < 3; ++a)
+          if (!((q >> a) & 1)) up[size_t(fill[t[q]]++)] = {a, t[q | (1 << a)], k.weight};
+    }
   }
   std::vector<std::vector<std::pair<int32_t, double>>> nbrs(static_cast<size_t>(nn));
   for (int64_t i = 0; i < nn; ++i) {
@@ -375,6 +388,43 @@ Lattice LatticeAssembly::coarse(const Lattice& f, std::vector<int32_t>* parent) 
 
 Lattice Lattice::coarsened(std::vector<int32_t>* parent) const { return LatticeAssembly::coarse(*this, parent); }
 
+void Lattice::replace_copies(const LatticeCopies& k) { *this = LatticeAssembly::from_copies(*this, k); }
+
+Lattice LatticeAssembly::from_copies(const Lattice& grid, const LatticeCopies& k) {
+  const size_t nc = k.cell_coords.size();
+  if (k.cell_nodes.size() != nc || k.cell_kind.size() != nc || (!k.cell_weight.empty() && k.cell_weight.size() != nc))
+    throw InvalidInput("replace_copies: the copies' arrays differ in length");
+  if (k.vertex_cell.size() != grid.vertex_cell.size())
+    throw InvalidInput("replace_copies: vertex_cell has the wrong length");
+  std::vector<int64_t> copy_cell(nc);
+  for (size_t c = 0; c < nc; ++c) {
+    const Eigen::Vector3i& x = k.cell_coords[c];
+    if ((x.array() < 0).any() || (x.array() >= grid.dims.array()).any())
+      throw InvalidInput("replace_copies: a copy outside the grid");
+    copy_cell[c] = x.x() + int64_t(grid.dims.x()) * (x.y() + int64_t(grid.dims.y()) * x.z());
+    if (c > 0 && copy_cell[c] < copy_cell[c - 1])
+      throw InvalidInput("replace_copies: copies not in grid order");
+  }
+  Lattice lat = start(grid.origin, grid.h, grid.dims, copy_cell, k.cell_kind);
+  lat.cell_weight = k.cell_weight;
+  DisjointSets slots(8 * lat.num_cells());
+  std::unordered_map<int32_t, int32_t> first;  // node label -> its first slot
+  for (size_t c = 0; c < nc; ++c)
+    for (int q = 0; q < 8; ++q) {
+      const auto [it, fresh] = first.emplace(k.cell_nodes[c][size_t(q)], int32_t(8 * c + q));
+      if (!fresh) slots.unite(it->second, int32_t(8 * c + q));
+    }
+  for (const Coupling& cp : k.couplings)
+    if (cp.branch < 0 || cp.trunk < 0 || size_t(cp.branch) >= nc || size_t(cp.trunk) >= nc || !(cp.weight >= 0.0))
+      throw InvalidInput("replace_copies: a coupling out of range");
+  lat.couplings = k.couplings;
+  finish(lat, slots);
+  for (int32_t v : k.vertex_cell)
+    if (v < 0 || v >= lat.num_cells()) throw InvalidInput("replace_copies: vertex_cell out of range");
+  lat.vertex_cell = k.vertex_cell;
+  return lat;
+}
+
 int32_t Lattice::cell_copies(int x, int y, int z) const {
   if (x < 0 || y < 0 || z < 0 || x >= dims.x() || y >= dims.y() || z >= dims.z()) return 0;
   return cell_count_[x + int64_t(dims.x()) * (y + int64_t(dims.y()) * z)];
@@ -458,6 +508,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
                               mesh_parts(mesh), grid.vertex_cells, options.split_resolution,
                               max_bytes - Lattice::estimate_bytes(grid.dims));
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
+  if (options.edit) options.edit(lat);
   build_stencil_shell(lat);
   return lat;
 }

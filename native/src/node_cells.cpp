@@ -8,12 +8,14 @@ NodeCells node_cells(const Lattice& lat) {
   t.offsets.assign(size_t(nr) + 1, 0);
   for (int64_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q) ++t.offsets[size_t(lat.cell_nodes[c][q]) + 1];
+  for (const Coupling& k : lat.couplings)
+    for (int q = 0; q < 8; ++q) ++t.offsets[size_t(lat.cell_nodes[size_t(k.trunk)][q]) + 1];
   for (int64_t i = 0; i < nr; ++i) t.offsets[i + 1] += t.offsets[i];
   t.cell.resize(size_t(t.offsets[nr]));
   t.s.resize(t.cell.size());
   std::vector<int32_t> fill(t.offsets.begin(), t.offsets.end() - 1);
-  for (int64_t c = 0; c < nc; ++c) {  // ascending c per node: a fixed order of the sums
-    const double w = cell_weight_of(lat, c);
+  // Copy c's corners (rest edges times w) under rotation `rot`.
+  auto add = [&](int64_t c, int32_t rot, double w) {
     for (int q = 0; q < 8; ++q) {
       const int32_t i = lat.cell_nodes[c][q];
       std::array<double, 3> s{0.0, 0.0, 0.0};
@@ -23,10 +25,12 @@ NodeCells node_cells(const Lattice& lat) {
       }
       for (double& v : s) v *= w;
       const int32_t k = fill[size_t(i)]++;
-      t.cell[size_t(k)] = int32_t(c);
+      t.cell[size_t(k)] = rot;
       t.s[size_t(k)] = s;
     }
-  }
+  };
+  for (int64_t c = 0; c < nc; ++c) add(c, int32_t(c), cell_weight_of(lat, c));  // ascending c per node
+  for (const Coupling& k : lat.couplings) add(k.trunk, k.branch, k.weight);     // then the couplings
   return t;
 }
 

@@ -2,7 +2,9 @@
 // gathers (cell_terms.h), b_i = g sum_k R_{cell[k]} s[k] over k in [offsets[i], offsets[i + 1]),
 // with s[k] = w_c sum over the 3 edges of the copy at that corner of (c_i - c_other), the rest
 // edge vectors times the copy's cell_weight. A node is a corner of at most 8 copies where nothing
-// is split, of more where copies of one cell share it.
+// is split, of more where copies of one cell share it. A branch coupling (Lattice::couplings) adds
+// its trunk copy's corners once more, under the branch copy's rotation (`cell` is then the branch
+// copy: the rotation's index) and times the coupling's weight.
 #pragma once
 #include <larap/lattice.h>
 
@@ -14,7 +16,7 @@ namespace larap {
 
 struct NodeCells {
   std::vector<int32_t> offsets;          // #real nodes + 1
-  std::vector<int32_t> cell;             // cell copy of each entry, ascending per node
+  std::vector<int32_t> cell;             // rotation (cell copy) of each entry, ascending per node before the couplings
   std::vector<std::array<double, 3>> s;  // w_c times the sum of the corner's 3 rest edges
 };
 

@@ -55,10 +55,40 @@ py::array_t<double> to_numpy(const RowMatrixX3d& M) {
   return a;
 }
 
+// Research hook (scripts/experiments/branch_engine.py): a dict of the copies' arrays (cell_coords
+// (C, 3), cell_nodes (C, 8) node labels, cell_kind (C,), cell_weight (C,) or empty, vertex_cell
+// (V,), couplings (K, 2) branch and trunk copies, coupling_weights (K,)) that replaces the fine
+// lattice's copies on the same grid (Lattice::replace_copies).
+std::function<void(larap::Lattice&)> copies_edit(const py::object& obj) {
+  const py::dict d = obj.cast<py::dict>();
+  using I32 = py::array_t<int32_t, py::array::c_style | py::array::forcecast>;
+  auto arr = [&](const char* key) { return I32(d[key]); };
+  larap::LatticeCopies k;
+  const I32 coords = arr("cell_coords"), nodes = arr("cell_nodes"), verts = arr("vertex_cell"), pairs = arr("couplings");
+  const py::array_t<uint8_t, py::array::c_style | py::array::forcecast> kinds(d["cell_kind"]);
+  const F64 weights(d["cell_weight"]), cw(d["coupling_weights"]);
+  const size_t nc = size_t(kinds.size());
+  if (size_t(coords.size()) != 3 * nc || size_t(nodes.size()) != 8 * nc || size_t(pairs.size()) != 2 * size_t(cw.size()))
+    throw larap::InvalidInput("lattice_copies: arrays of the wrong sizes");
+  for (size_t c = 0; c < nc; ++c) {
+    k.cell_coords.emplace_back(coords.data()[3 * c], coords.data()[3 * c + 1], coords.data()[3 * c + 2]);
+    std::array<int32_t, 8> n{};
+    for (size_t q = 0; q < 8; ++q) n[q] = nodes.data()[8 * c + q];
+    k.cell_nodes.push_back(n);
+  }
+  k.cell_kind.assign(kinds.data(), kinds.data() + nc);
+  k.cell_weight.assign(weights.data(), weights.data() + weights.size());
+  k.vertex_cell.assign(verts.data(), verts.data() + verts.size());
+  for (py::ssize_t j = 0; j < cw.size(); ++j)
+    k.couplings.push_back({pairs.data()[2 * j], pairs.data()[2 * j + 1], cw.data()[j]});
+  return [k = std::move(k)](larap::Lattice& lat) { lat.replace_copies(k); };
+}
+
 std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t cells,
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels,
-                                      bool split_cells, int split_resolution, double junction_brace) {
+                                      bool split_cells, int split_resolution, double junction_brace,
+                                      py::object lattice_copies) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -77,6 +107,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   opt.device = device;
   opt.levels = levels;
   opt.junction_brace = junction_brace;
+  if (!lattice_copies.is_none()) opt.lattice.edit = copies_edit(lattice_copies);
   py::gil_scoped_release release;
   return std::make_unique<PyDeformer>(std::move(mesh), opt);
 }
@@ -203,7 +234,8 @@ void bind_deformer(py::module_& m) {
            py::arg("cells") = 0, py::arg("cell_size") = 0.0, py::arg("weights") = "trilinear",
            py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
            py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24,
-           py::arg("junction_brace") = larap::DeformerOptions{}.junction_brace)
+           py::arg("junction_brace") = larap::DeformerOptions{}.junction_brace,
+           py::arg("lattice_copies") = py::none())
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());

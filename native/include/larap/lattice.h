@@ -35,9 +35,12 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace larap {
+
+class Lattice;
 
 struct LatticeOptions {
   double cell_size = 0.0;  // > 0: use this edge length
@@ -52,6 +55,28 @@ struct LatticeOptions {
   // separate parts closer (measured: beyond 1.55 sqrt(3) h / split_resolution; docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
+  // Research hook (scripts/experiments/branch_engine.py): applied to the fine lattice after
+  // assembly and before the stencil shell. Not part of the public API.
+  std::function<void(Lattice&)> edit;
+};
+
+// A branch copy's rotation also answers for the 12 edges of the copy it was split from (its
+// trunk's), weighing `weight` (docs/method.md, "One copy per branch"): the energy gains
+// weight * sum over the trunk copy's edges |(p_a - p_b) - R_branch (c_a - c_b)|^2.
+struct Coupling {
+  int32_t branch = -1, trunk = -1;
+  double weight = 0.0;
+};
+
+// The arrays of a lattice's copies, from which Lattice::replace_copies rebuilds one on the same
+// grid (research hook; copies in grid order, copies of a cell consecutive).
+struct LatticeCopies {
+  std::vector<Eigen::Vector3i> cell_coords;
+  std::vector<std::array<int32_t, 8>> cell_nodes;  // any node labels: equal labels are one node
+  std::vector<uint8_t> cell_kind;
+  std::vector<double> cell_weight;                 // empty: all 1
+  std::vector<int32_t> vertex_cell;
+  std::vector<Coupling> couplings;
 };
 
 // Default target cell count when neither cells nor cell_size is given.
@@ -79,6 +104,9 @@ class Lattice {
   // stiff as the material it holds, not as a whole cell (the elasticity of Nesme et al. 2009).
   // Cells kept whole, and every cell of a coarser level, weigh 1.
   std::vector<double> cell_weight;
+  // Branch couplings (fine level only; empty where nothing is split per branch). Their weights
+  // count in edge_weight (the system's Laplacian) like a copy's.
+  std::vector<Coupling> couplings;
 
   // ------------------------------------------------------------------ nodes
   // Real nodes first (corners of kept cells, in grid order, copies at one point consecutive), then
@@ -134,6 +162,10 @@ class Lattice {
   // shell. vertex_cell maps each vertex to the coarse copy of its fine copy; parent (if given)
   // receives the coarse copy of every fine cell copy.
   Lattice coarsened(std::vector<int32_t>* parent = nullptr) const;
+
+  // Rebuilds this lattice's cells, nodes and edges from `copies` on the same grid (no shell; the
+  // caller builds it). Throws InvalidInput when the arrays do not fit the grid.
+  void replace_copies(const LatticeCopies& copies);
 
   // Bytes a grid of these dimensions needs while building (dense index grids + marks).
   static int64_t estimate_bytes(const Eigen::Vector3i& dims);

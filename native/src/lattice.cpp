@@ -12,6 +12,7 @@
 #include <string>
 #include <unordered_map>
 
+#include "branch_copies.h"
 #include "cell_pieces.h"
 #include "disjoint_sets.h"
 #include "mesh_parts.h"
@@ -503,11 +504,20 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   }
 
   CellPieces pieces;  // none: the plain lattice
-  if (options.split_cells)
-    pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris,
-                              mesh_parts(mesh), grid.vertex_cells, options.split_resolution,
+  std::vector<int32_t> parts;
+  if (options.split_cells) {
+    parts = mesh_parts(mesh);
+    pieces = find_cell_pieces(grid.origin, grid.h, grid.dims, grid.marks, mesh.vertices, tris, parts,
+                              grid.vertex_cells, options.split_resolution,
                               max_bytes - Lattice::estimate_bytes(grid.dims));
+  }
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
+  if (options.split_cells && options.branch_copies) {
+    BranchOptions bo;
+    bo.k = options.split_resolution;
+    LatticeCopies copies;
+    if (split_per_branch(lat, mesh.vertices, tris, parts, bo, copies)) lat.replace_copies(copies);
+  }
   if (options.edit) options.edit(lat);
   build_stencil_shell(lat);
   return lat;

@@ -88,7 +88,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels,
                                       bool split_cells, int split_resolution, double junction_brace,
-                                      py::object lattice_copies) {
+                                      py::object lattice_copies, bool branch_copies) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -102,6 +102,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   opt.lattice.max_bytes = max_bytes;
   opt.lattice.split_cells = split_cells;
   opt.lattice.split_resolution = split_resolution;
+  opt.lattice.branch_copies = branch_copies;
   opt.weights = larap::parse_weight_kind(weights);
   opt.gamma = gamma;
   opt.device = device;
@@ -235,7 +236,7 @@ void bind_deformer(py::module_& m) {
            py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
            py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24,
            py::arg("junction_brace") = larap::DeformerOptions{}.junction_brace,
-           py::arg("lattice_copies") = py::none())
+           py::arg("lattice_copies") = py::none(), py::arg("branch_copies") = false)
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());

@@ -55,6 +55,9 @@ struct LatticeOptions {
   // separate parts closer (measured: beyond 1.55 sqrt(3) h / split_resolution; docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
+  // One copy per branch where separate parts meet (research stage, off by default; CPU only):
+  // docs/method.md, "One copy per branch", native/src/branch_copies.h.
+  bool branch_copies = false;
   // Research hook (scripts/experiments/branch_engine.py): applied to the fine lattice after
   // assembly and before the stencil shell. Not part of the public API.
   std::function<void(Lattice&)> edit;

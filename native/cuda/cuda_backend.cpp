@@ -87,6 +87,24 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices) :
     sys_.nc_off = nc_off_.upload(t.offsets.data(), t.offsets.size(), stream_);
     sys_.nc_cell = nc_cell_.upload(t.cell.data(), t.cell.size(), stream_);
     sys_.nc_s = nc_s_.upload(s.data(), s.size(), stream_);
+    std::vector<int> cp_off, cp_trunk;
+    std::vector<float> cp_w;
+    if (!lattice.couplings.empty()) {  // grouped by branch copy
+      cp_off.assign(size_t(ncell) + 1, 0);
+      for (const Coupling& k : lattice.couplings) ++cp_off[size_t(k.branch) + 1];
+      for (int c = 0; c < ncell; ++c) cp_off[size_t(c) + 1] += cp_off[size_t(c)];
+      cp_trunk.resize(lattice.couplings.size());
+      cp_w.resize(lattice.couplings.size());
+      std::vector<int> fill(cp_off.begin(), cp_off.end() - 1);
+      for (const Coupling& k : lattice.couplings) {
+        const int j = fill[size_t(k.branch)]++;
+        cp_trunk[size_t(j)] = k.trunk;
+        cp_w[size_t(j)] = float(k.weight);
+      }
+      sys_.cp_off = cp_off_.upload(cp_off.data(), cp_off.size(), stream_);
+      sys_.cp_trunk = cp_trunk_.upload(cp_trunk.data(), cp_trunk.size(), stream_);
+      sys_.cp_w = cp_w_.upload(cp_w.data(), cp_w.size(), stream_);
+    }
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // the host tables may go
   }
   {  // the stencil shell's weights (Lattice::fill_shell)
@@ -152,7 +170,6 @@ void CudaBackend::write_profile(const char* what, int iterations,
 std::unique_ptr<Backend> make_cuda_backend(const Lattice& lattice, const RowMatrixX3d& vertices) {
   std::string why;
   if (!cuda_available(&why)) throw DeviceError("device 'cuda' is not available: " + why);
-  if (!lattice.couplings.empty()) throw DeviceError("the CUDA backend does not take branch couplings yet");
   return std::make_unique<CudaBackend>(lattice, vertices);
 }
 

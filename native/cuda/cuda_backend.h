@@ -177,6 +177,8 @@ class CudaBackend final : public Backend {
   cuda::DeviceBuffer<float> shell_w_;
   cuda::DeviceBuffer<int> cell_nodes_, nc_off_, nc_cell_;  // cell copies (system.h)
   cuda::DeviceBuffer<float> cell_w_;
+  cuda::DeviceBuffer<int> cp_off_, cp_trunk_;  // branch couplings (system.h)
+  cuda::DeviceBuffer<float> cp_w_;
   cuda::DeviceBuffer<float4> nc_s_;
   cuda::DeviceBuffer<float> a_val_, minv_, coef_;
   cuda::DeviceBuffer<float4> rot_;

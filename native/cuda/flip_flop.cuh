@@ -82,16 +82,33 @@ __device__ __forceinline__ void load_rotation(const System& s, int c, float (&R)
 }
 
 // Cell copy c: new rotation (write_rot) and, when want_e, its energy term g w_c e_c with the old
-// rotation.
+// rotation. A branch copy with couplings fits its rotation to w_c S_c plus each coupling's weight
+// times its trunk copy's S, and its energy counts the trunk's edges under its rotation too (the
+// CPU backend's rotations()).
 __device__ __forceinline__ double rot_cell(const System& s, int c, bool write_rot, bool want_e,
                                            const Pending& pd = {}) {
   const CellCorners corners(s, c, pd);
   float Ro[9];
+  const int q0 = s.cp_off ? __ldg(s.cp_off + c) : 0, q1 = s.cp_off ? __ldg(s.cp_off + c + 1) : 0;
   if (want_e) load_rotation(s, c, Ro);
   float S[9];
-  const float arap = cell_covariance(corners, want_e, Ro, S);
+  float arap = cell_covariance(corners, want_e, Ro, S);
+  if (q0 < q1) {  // coupled: weighted sums (rare, a few copies per junction)
+    const float wc = s.cell_w ? __ldg(s.cell_w + c) : 1.f;
+    arap *= wc;
+#pragma unroll
+    for (int t = 0; t < 9; ++t) S[t] *= wc;
+    for (int q = q0; q < q1; ++q) {
+      const CellCorners trunk(s, __ldg(s.cp_trunk + q), pd);
+      const float w = __ldg(s.cp_w + q);
+      float St[9];
+      arap += w * cell_covariance(trunk, want_e, Ro, St);
+#pragma unroll
+      for (int t = 0; t < 9; ++t) S[t] += w * St[t];
+    }
+  }
   double e = 0.0;
-  if (want_e) e = double(s.g) * double(s.cell_w ? __ldg(s.cell_w + c) : 1.f) * double(arap);
+  if (want_e) e = double(s.g) * (q0 < q1 ? 1.0 : double(s.cell_w ? __ldg(s.cell_w + c) : 1.f)) * double(arap);
   if (write_rot) {
     float R[9];
     cuda_math::best_rotation_f(S, R);

@@ -84,6 +84,11 @@ struct System {
   const int* nc_off = nullptr;
   const int* nc_cell = nullptr;
   const float4* nc_s = nullptr;
+  // Branch couplings (Lattice::couplings; null when there are none): copy c's couplings are
+  // [cp_off[c], cp_off[c + 1]), each a trunk copy cp_trunk and a weight cp_w (rot_cell).
+  const int* cp_off = nullptr;
+  const int* cp_trunk = nullptr;
+  const float* cp_w = nullptr;
   // Scalars.
   double* dots = nullptr;        // (inner + 1) * 6
   float* coef = nullptr;         // (inner + 2) * 8

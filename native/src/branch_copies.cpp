@@ -75,8 +75,12 @@ struct Material {
 
 bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vector<Eigen::Vector3i>& tris,
                       const std::vector<int32_t>& vertex_part, const BranchOptions& o, LatticeCopies& out) {
+  if (tris.empty()) return false;
+  bool several = false;  // two parts with triangles, before anything is built
+  for (size_t t = 1; t < tris.size() && !several; ++t)
+    several = vertex_part[size_t(tris[t][0])] != vertex_part[size_t(tris[0][0])];
+  if (!several) return false;
   const Parts P = parts_of(V, tris, vertex_part);
-  if (P.count() < 2) return false;
   const Eigen::Vector3i dims = lat.dims;
   const int64_t ngrid = int64_t(dims.x()) * dims.y() * dims.z();
   const double h = lat.h;

@@ -515,6 +515,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (options.split_cells && options.branch_copies) {
     BranchOptions bo;
     bo.k = options.split_resolution;
+    bo.coupling = options.branch_coupling;
     LatticeCopies copies;
     if (split_per_branch(lat, mesh.vertices, tris, parts, bo, copies)) lat.replace_copies(copies);
   }

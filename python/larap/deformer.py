@@ -158,7 +158,7 @@ class Deformer:
     def __init__(self, vertices, faces=None, *, face_offsets=None, cells=None, cell_size=None,
                  weights="trilinear", gamma=DEFAULT_GAMMA, device="cpu", max_bytes=None, levels=1,
                  split_cells=True, split_resolution=24, junction_brace=DEFAULT_JUNCTION_BRACE,
-                 _lattice_copies=None, _branch_copies=False):
+                 _lattice_copies=None, _branch_copies=False, _branch_coupling=10.0):
         V = _points("vertices", vertices)
         if V.shape[0] == 0:
             raise ValueError("vertices is empty: the mesh needs at least one vertex")
@@ -174,7 +174,7 @@ class Deformer:
                                     _boolean("split_cells", split_cells),
                                     _integer("split_resolution", split_resolution),
                                     _real("junction_brace", junction_brace), _lattice_copies,
-                                    _boolean("_branch_copies", _branch_copies))
+                                    _boolean("_branch_copies", _branch_copies), _real("_branch_coupling", _branch_coupling))
         self._handles_set = False
         self._warned = ""
         self._warn_fallback()

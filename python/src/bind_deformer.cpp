@@ -88,7 +88,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
                                       double cell_size, const std::string& weights, double gamma,
                                       const std::string& device, int64_t max_bytes, int levels,
                                       bool split_cells, int split_resolution, double junction_brace,
-                                      py::object lattice_copies, bool branch_copies) {
+                                      py::object lattice_copies, bool branch_copies, double branch_coupling) {
   const auto vi = vertices.request();
   require_rows3(vi, "vertices", -1);
   larap::PolygonMesh mesh;
@@ -103,6 +103,7 @@ std::unique_ptr<PyDeformer> make(F64 vertices, I64 offsets, I64 indices, int64_t
   opt.lattice.split_cells = split_cells;
   opt.lattice.split_resolution = split_resolution;
   opt.lattice.branch_copies = branch_copies;
+  opt.lattice.branch_coupling = branch_coupling;
   opt.weights = larap::parse_weight_kind(weights);
   opt.gamma = gamma;
   opt.device = device;
@@ -236,7 +237,8 @@ void bind_deformer(py::module_& m) {
            py::arg("gamma") = larap::DeformerOptions{}.gamma, py::arg("device") = "cpu", py::arg("max_bytes") = 0,
            py::arg("levels") = 1, py::arg("split_cells") = true, py::arg("split_resolution") = 24,
            py::arg("junction_brace") = larap::DeformerOptions{}.junction_brace,
-           py::arg("lattice_copies") = py::none(), py::arg("branch_copies") = false)
+           py::arg("lattice_copies") = py::none(), py::arg("branch_copies") = false,
+           py::arg("branch_coupling") = larap::LatticeOptions{}.branch_coupling)
       .def("set_handles",
            [](PyDeformer& self, I64 idx) {
              std::vector<int64_t> v(idx.data(), idx.data() + idx.size());
@@ -345,6 +347,17 @@ void bind_deformer(py::module_& m) {
         py::array_t<int32_t> a({py::ssize_t(b.size()), py::ssize_t(3)});
         if (!b.empty()) std::memcpy(a.mutable_data(), b.data(), sizeof(int32_t) * 3 * b.size());
         return a;
+      })
+      .def("branch_couplings", [](const PyDeformer& self) {  // (K, 2) branch and trunk copies, (K,) weights
+        const auto& c = self.engine.lattice().couplings;
+        py::array_t<int32_t> pairs({py::ssize_t(c.size()), py::ssize_t(2)});
+        py::array_t<double> w(py::ssize_t(c.size()));
+        for (size_t k = 0; k < c.size(); ++k) {
+          pairs.mutable_at(k, 0) = c[k].branch;
+          pairs.mutable_at(k, 1) = c[k].trunk;
+          w.mutable_at(k) = c[k].weight;
+        }
+        return py::make_tuple(pairs, w);
       })
       .def("cell_weights", [](const PyDeformer& self) {
         const auto& lat = self.engine.lattice();

@@ -1,7 +1,7 @@
 # Run: PYTHONPATH=python /usr/bin/python3 -m pytest tests/python/test_branch_couplings.py
 """Branch couplings in the engine's energy (issue 9, session 31; Lattice::couplings): a branch
-copy's rotation also answers for the 12 edges of a trunk copy, at the coupling's weight. The
-lattice does not make them yet; these tests give them through the research hook that replaces a
+copy's rotation also answers for the 12 edges of a trunk copy, at the coupling's weight. These tests
+give them through the research hook that replaces a
 lattice's copies (Lattice::replace_copies, `_lattice_copies`), as scripts/experiments/
 branch_engine.py does. The energy stays an energy: rest and rigid motions are exact, flip-flops
 never increase it, and a heavy coupling makes the branch copy turn with its trunk."""
@@ -132,7 +132,17 @@ def test_bad_copies_are_refused():
 
 
 @need_cuda()
-def test_the_device_refuses_couplings_it_cannot_solve():
-    V, F, _ = bar()
-    with pytest.raises(RuntimeError, match="couplings"):
-        coupled(V, F, device="cuda")
+@pytest.mark.parametrize("weights", ["trilinear", "bspline"])
+def test_cpu_and_cuda_agree_with_couplings(weights):
+    """The device fits a coupled copy's rotation to its trunk's edges too (flip_flop.cuh, rot_cell)
+    and gathers the couplings in its right-hand side: converged, both devices give one pose."""
+    V, F, groups = bar()
+    out = {}
+    for dev in ("cpu", "cuda"):
+        d = coupled(V, F, weights=weights, device=dev)
+        d.set_handle_groups(groups)
+        out[dev] = d.solve(transforms=bend(V), iterations=300)
+        e = np.array(d.stats["energy"])
+        assert np.all(np.diff(e) <= 1e-4 * e[0] + 1e-7), (dev, e)
+    size = np.linalg.norm(V.max(0) - V.min(0))
+    assert np.abs(out["cpu"] - out["cuda"]).max() <= 1e-4 * size

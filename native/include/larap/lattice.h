@@ -58,6 +58,7 @@ struct LatticeOptions {
   // One copy per branch where separate parts meet (research stage, off by default; CPU only):
   // docs/method.md, "One copy per branch", native/src/branch_copies.h.
   bool branch_copies = false;
+  double branch_coupling = 10.0;  // a coupling's weight per unit of its trunk copy's weight
   // Research hook (scripts/experiments/branch_engine.py): applied to the fine lattice after
   // assembly and before the stencil shell. Not part of the public API.
   std::function<void(Lattice&)> edit;

@@ -66,20 +66,25 @@ void resolve_junction_stencils(const Lattice& lat, const PolygonMesh& mesh, Bind
     for (int k = 0; k < 27; ++k) {
       if (cover[size_t(27 * int64_t(n) + k)] != kStencilAmbiguous) continue;
       const int d[3] = {k % 3 - 1, (k / 3) % 3 - 1, k / 9 - 1};
-      // 1. The one node at n + d of the side's copies.
-      int32_t found = kStencilNone;
-      bool unique = true;
+      // 1. The node at n + d of the side's copies: the one, or where the side's copies name
+      //    several (one copy per branch: a part's copy on the palm's side and its own beyond,
+      //    branch_copies.h), the one most of them name (the lowest id on a tie) -- a node of the
+      //    part's side either way, where the node's own item mixes every piece at that point.
+      std::map<int32_t, int> named;
       for (const auto& [c, a] : side) {
         const int bc[3] = {(a & 1) + d[0], ((a >> 1) & 1) + d[1], (a >> 2) + d[2]};
         if (bc[0] < 0 || bc[0] > 1 || bc[1] < 0 || bc[1] > 1 || bc[2] < 0 || bc[2] > 1) continue;
-        const int32_t m = lat.cell_nodes[c][bc[0] | (bc[1] << 1) | (bc[2] << 2)];
-        if (found == kStencilNone) found = m;
-        else if (found != m) unique = false;
+        ++named[lat.cell_nodes[c][bc[0] | (bc[1] << 1) | (bc[2] << 2)]];
       }
-      if (found != kStencilNone) {
-        if (unique) row[k] = found;
+      if (!named.empty()) {
+        int32_t best = named.begin()->first;
+        for (const auto& [m, count] : named)
+          if (count > named[best]) best = m;
+        row[k] = best;
         continue;
       }
+      int32_t found = kStencilNone;
+      bool unique = true;
       // 2. The item a corner of the side's copies has for the same point, without ambiguity.
       const Eigen::Vector3i point = lat.node_coords[n] + Eigen::Vector3i(d[0], d[1], d[2]);
       found = kStencilNone;

@@ -125,12 +125,36 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
     return ps;
   };
 
-  // Cells near where parts meet: those two parts' triangles overlap, and their kept neighbours.
+  // Vertices per copy.
+  const int64_t nc = lat.num_cells();
+  std::vector<int32_t> vert_offsets(size_t(nc) + 1, 0), verts(lat.vertex_cell.size());
+  for (int32_t c : lat.vertex_cell) ++vert_offsets[size_t(c) + 1];
+  for (int64_t c = 0; c < nc; ++c) vert_offsets[size_t(c) + 1] += vert_offsets[size_t(c)];
+  {
+    std::vector<int32_t> fill(vert_offsets.begin(), vert_offsets.end() - 1);
+    for (size_t v = 0; v < lat.vertex_cell.size(); ++v) verts[size_t(fill[size_t(lat.vertex_cell[v])]++)] = int32_t(v);
+  }
+
+  // Cells near where parts meet: a cell one of whose copies holds vertices of two parts, or whose
+  // triangles are of more parts than it has copies (so that one copy holds two), and the kept
+  // cells around them. Where cell splitting kept every part in a copy of its own (parts close
+  // together but apart, such as rows of boxes), nothing is to be split.
+  auto holds_two = [&](int64_t c) {
+    int32_t seen = -1;
+    for (int32_t q = vert_offsets[size_t(c)]; q < vert_offsets[size_t(c) + 1]; ++q) {
+      const int32_t p = P.of_vertex[size_t(verts[size_t(q)])];
+      if (p < 0) continue;
+      if (seen >= 0 && p != seen) return true;
+      seen = p;
+    }
+    return false;
+  };
   std::vector<uint8_t> todo(size_t(ngrid), 0);
   bool any = false;
-  for (int64_t c = 0; c < lat.num_cells(); ++c) {
+  for (int64_t c = 0; c < nc; ++c) {
     const Eigen::Vector3i x = lat.cell_coords[size_t(c)];
-    if (parts_in(grid_index(x)).size() < 2) continue;
+    const size_t copies = size_t(lat.cell_copies(x.x(), x.y(), x.z()));
+    if (!holds_two(c) && parts_in(grid_index(x)).size() <= copies) continue;
     any = true;
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
@@ -143,16 +167,6 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
   std::vector<int64_t> cells;
   for (int64_t g = 0; g < ngrid; ++g)
     if (todo[size_t(g)]) cells.push_back(g);
-
-  // Vertices per copy.
-  const int64_t nc = lat.num_cells();
-  std::vector<int32_t> vert_offsets(size_t(nc) + 1, 0), verts(lat.vertex_cell.size());
-  for (int32_t c : lat.vertex_cell) ++vert_offsets[size_t(c) + 1];
-  for (int64_t c = 0; c < nc; ++c) vert_offsets[size_t(c) + 1] += vert_offsets[size_t(c)];
-  {
-    std::vector<int32_t> fill(vert_offsets.begin(), vert_offsets.end() - 1);
-    for (size_t v = 0; v < lat.vertex_cell.size(); ++v) verts[size_t(fill[size_t(lat.vertex_cell[v])]++)] = int32_t(v);
-  }
 
   // 1. Material, cell by cell.
   const int k = o.k;
@@ -191,76 +205,109 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
       }
       for (auto& b : inside[j]) b = b >= kInsideVotes;
     }
-    // 6-connected components of the voxels inside some part.
-    std::vector<int32_t> comp(size_t(k3), -1);
-    int32_t ncomp = 0;
-    std::vector<int64_t> stack;
-    auto solid = [&](int64_t vi) {
-      for (const auto& in : inside)
-        if (in[size_t(vi)]) return true;
-      return false;
-    };
-    for (int64_t s = 0; s < k3; ++s) {
-      if (comp[size_t(s)] >= 0 || !solid(s)) continue;
-      comp[size_t(s)] = ncomp;
-      stack.assign(1, s);
-      while (!stack.empty()) {
-        const int64_t vi = stack.back();
-        stack.pop_back();
-        const int i = int(vi % k), jj = int((vi / k) % k), l = int(vi / (int64_t(k) * k));
-        const int nb[6][3] = {{i - 1, jj, l}, {i + 1, jj, l}, {i, jj - 1, l}, {i, jj + 1, l}, {i, jj, l - 1}, {i, jj, l + 1}};
-        for (const auto& n : nb) {
-          if (n[0] < 0 || n[1] < 0 || n[2] < 0 || n[0] >= k || n[1] >= k || n[2] >= k) continue;
-          const int64_t w = n[0] + int64_t(k) * (n[1] + int64_t(k) * n[2]);
-          if (comp[size_t(w)] < 0 && solid(w)) {
-            comp[size_t(w)] = ncomp;
-            stack.push_back(w);
-          }
-        }
-      }
-      ++ncomp;
-    }
-    // The copies of this cell take components: those holding their vertices' parts.
+    // The voxels inside some part; where the cell has several copies, their 6-connected components.
+    std::vector<uint8_t> solid(size_t(k3), 0);
+    for (const auto& in : inside)
+      for (int64_t vi = 0; vi < k3; ++vi) solid[size_t(vi)] |= in[size_t(vi)];
     const int32_t first = lat.cell_at(x.x(), x.y(), x.z()), ncopies = lat.cell_copies(x.x(), x.y(), x.z());
+    std::vector<int32_t> comp;
+    int32_t ncomp = 0;
+    if (ncopies > 1) {
+      comp.assign(size_t(k3), -1);
+      std::vector<int32_t> stack;
+      for (int64_t s = 0; s < k3; ++s) {
+        if (comp[size_t(s)] >= 0 || !solid[size_t(s)]) continue;
+        comp[size_t(s)] = ncomp;
+        stack.assign(1, int32_t(s));
+        while (!stack.empty()) {
+          const int32_t vi = stack.back();
+          stack.pop_back();
+          const int i = vi % k, jj = (vi / k) % k, l = vi / (k * k);
+          const int32_t step[3] = {1, k, k * k};
+          const int at[3] = {i, jj, l};
+          for (int a = 0; a < 3; ++a)
+            for (int sgn = -1; sgn <= 1; sgn += 2) {
+              if (at[a] + sgn < 0 || at[a] + sgn >= k) continue;
+              const int32_t w = vi + sgn * step[a];
+              if (comp[size_t(w)] < 0 && solid[size_t(w)]) {
+                comp[size_t(w)] = ncomp;
+                stack.push_back(w);
+              }
+            }
+        }
+        ++ncomp;
+      }
+    }
+    // The copies take components: those holding their vertices' parts (a copy without vertices:
+    // what no other copy takes). One copy takes everything.
     std::vector<std::vector<uint8_t>> held(size_t(ncopies), std::vector<uint8_t>(size_t(ncomp), 0));
-    std::vector<uint8_t> taken(size_t(ncomp), 0);
-    for (int32_t X = 0; X < ncopies; ++X) {
-      if (ncopies == 1) {
-        std::fill(held[0].begin(), held[0].end(), 1);
+    if (ncopies > 1) {
+      std::vector<uint8_t> taken(size_t(ncomp), 0);
+      for (int32_t X = 0; X < ncopies; ++X) {
+        std::vector<size_t> js;  // the present parts of its vertices
+        for (int32_t q = vert_offsets[size_t(first + X)]; q < vert_offsets[size_t(first + X) + 1]; ++q) {
+          const auto it = std::find(present.begin(), present.end(), P.of_vertex[size_t(verts[size_t(q)])]);
+          if (it != present.end()) js.push_back(size_t(it - present.begin()));
+        }
+        std::sort(js.begin(), js.end());
+        js.erase(std::unique(js.begin(), js.end()), js.end());
+        for (size_t j : js)
+          for (int64_t vi = 0; vi < k3; ++vi)
+            if (inside[j][size_t(vi)]) held[size_t(X)][size_t(comp[size_t(vi)])] = 1;
+        for (int32_t c = 0; c < ncomp; ++c) taken[size_t(c)] |= held[size_t(X)][size_t(c)];
+      }
+      for (int32_t X = 0; X < ncopies; ++X) {
+        bool none = true;
+        for (uint8_t t : held[size_t(X)]) none = none && !t;
+        if (!none) continue;
+        for (int32_t c = 0; c < ncomp; ++c) held[size_t(X)][size_t(c)] = !taken[size_t(c)];
         break;
       }
-      for (int32_t q = vert_offsets[size_t(first + X)]; q < vert_offsets[size_t(first + X) + 1]; ++q) {
-        const auto it = std::find(present.begin(), present.end(), P.of_vertex[size_t(verts[size_t(q)])]);
-        if (it == present.end()) continue;
-        const auto& in = inside[size_t(it - present.begin())];
-        for (int64_t vi = 0; vi < k3; ++vi)
-          if (in[size_t(vi)] && comp[size_t(vi)] >= 0) held[size_t(X)][size_t(comp[size_t(vi)])] = 1;
-      }
     }
-    for (int32_t X = 0; X < ncopies; ++X)
-      for (int32_t c = 0; c < ncomp; ++c) taken[size_t(c)] |= held[size_t(X)][size_t(c)];
-    for (int32_t X = 0; X < ncopies && ncopies > 1; ++X) {  // a copy without vertices: the rest
-      bool none = true;
-      for (uint8_t t : held[size_t(X)]) none = none && !t;
-      if (!none) continue;
-      for (int32_t c = 0; c < ncomp; ++c) held[size_t(X)][size_t(c)] = !taken[size_t(c)];
-      break;
-    }
+    Eigen::Vector3d corner[8];
+    for (int q = 0; q < 8; ++q) corner[q] = lo + h * Eigen::Vector3d(double(q & 1), double((q >> 1) & 1), double(q >> 2));
+    auto voxel_of = [&](const Eigen::Vector3d& p) {
+      int c[3];
+      for (int a = 0; a < 3; ++a) c[a] = std::clamp(geometry::floor_int(std::max((p[a] - lo[a]) / hv, 0.0)), 0, k - 1);
+      return c[0] + int64_t(k) * (c[1] + int64_t(k) * c[2]);
+    };
+    // d[q] = min over the voxels of `set` of the squared distance from corner q to their centres.
+    // Only voxels with a face on the set's border count: one with its neighbour towards a corner
+    // in the set is farther from that corner than the neighbour.
+    auto nearest = [&](const std::vector<uint8_t>& set, std::array<double, 8>& d) {
+      for (int l = 0; l < k; ++l)
+        for (int jj = 0; jj < k; ++jj)
+          for (int i = 0; i < k; ++i) {
+            const int64_t vi = i + int64_t(k) * (jj + int64_t(k) * l);
+            if (!set[size_t(vi)]) continue;
+            if (i > 0 && i < k - 1 && jj > 0 && jj < k - 1 && l > 0 && l < k - 1 && set[size_t(vi - 1)] &&
+                set[size_t(vi + 1)] && set[size_t(vi - k)] && set[size_t(vi + k)] && set[size_t(vi - k * k)] &&
+                set[size_t(vi + k * k)])
+              continue;
+            const Eigen::Vector3d c = lo + hv * Eigen::Vector3d(i + 0.5, jj + 0.5, l + 0.5);
+            for (int q = 0; q < 8; ++q) d[size_t(q)] = std::min(d[size_t(q)], (c - corner[q]).squaredNorm());
+          }
+    };
+    auto nearest_point = [&](const Eigen::Vector3d& p, std::array<double, 8>& d) {
+      for (int q = 0; q < 8; ++q) d[size_t(q)] = std::min(d[size_t(q)], (p - corner[q]).squaredNorm());
+    };
     // Per copy: its parts' material (voxels and vertices), the trunk, the exposed branches.
+    std::vector<uint8_t> mine(static_cast<size_t>(k3)), within(static_cast<size_t>(k3)), exposed(static_cast<size_t>(k3));
     for (int32_t X = 0; X < ncopies; ++X) {
       const int32_t cX = first + X;
-      std::map<int32_t, std::vector<int64_t>> vox;       // part -> voxels
-      std::map<int32_t, std::vector<int32_t>> vtx;       // part -> vertices
+      for (int64_t vi = 0; vi < k3; ++vi)
+        mine[size_t(vi)] = solid[size_t(vi)] && (ncopies == 1 || held[size_t(X)][size_t(comp[size_t(vi)])]);
+      std::vector<int64_t> count(present.size(), 0);  // each present part's voxels in the copy
       for (size_t j = 0; j < present.size(); ++j)
-        for (int64_t vi = 0; vi < k3; ++vi)
-          if (inside[j][size_t(vi)] && comp[size_t(vi)] >= 0 && held[size_t(X)][size_t(comp[size_t(vi)])])
-            vox[present[j]].push_back(vi);
+        for (int64_t vi = 0; vi < k3; ++vi) count[j] += inside[j][size_t(vi)] && mine[size_t(vi)];
+      std::map<int32_t, std::vector<int32_t>> vtx;  // part -> its vertices in the copy
       for (int32_t q = vert_offsets[size_t(cX)]; q < vert_offsets[size_t(cX) + 1]; ++q) {
         const int32_t p = P.of_vertex[size_t(verts[size_t(q)])];
         if (p >= 0) vtx[p].push_back(verts[size_t(q)]);
       }
       std::vector<int32_t> parts;
-      for (const auto& [p, l] : vox) parts.push_back(p);
+      for (size_t j = 0; j < present.size(); ++j)
+        if (count[j] > 0) parts.push_back(present[j]);
       for (const auto& [p, l] : vtx) parts.push_back(p);
       std::sort(parts.begin(), parts.end());
       parts.erase(std::unique(parts.begin(), parts.end()), parts.end());
@@ -272,62 +319,55 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
       });
       const auto tj = std::find(present.begin(), present.end(), m.trunk);
       const uint8_t* in_trunk = tj == present.end() ? nullptr : inside[size_t(tj - present.begin())].data();
-      auto voxel_of = [&](const Eigen::Vector3d& p) {
-        int c[3];
-        for (int a = 0; a < 3; ++a) c[a] = std::clamp(geometry::floor_int(std::max((p[a] - lo[a]) / hv, 0.0)), 0, k - 1);
-        return c[0] + int64_t(k) * (c[1] + int64_t(k) * c[2]);
-      };
-      auto centre = [&](int64_t vi) {
-        return Eigen::Vector3d(lo + hv * Eigen::Vector3d(double(vi % k) + 0.5, double((vi / k) % k) + 0.5,
-                                                          double(vi / (int64_t(k) * k)) + 0.5));
-      };
       // The trunk's material: its voxels, its vertices, and other parts' vertices inside it.
-      std::vector<uint8_t> within(size_t(k3), 0);
-      if (vox.count(m.trunk))
-        for (int64_t vi : vox[m.trunk]) within[size_t(vi)] = 1;
-      std::vector<Eigen::Vector3d> trunk_points;
+      int64_t nwithin = 0;
+      for (int64_t vi = 0; vi < k3; ++vi) {
+        within[size_t(vi)] = in_trunk && in_trunk[vi] && mine[size_t(vi)];
+        nwithin += within[size_t(vi)];
+      }
+      m.within_voxels = nwithin > 0;
+      m.within_share = double(nwithin) / double(k3);
+      std::array<double, 8> dT, dB;
+      dT.fill(kInf);
+      dB.fill(kInf);
+      nearest(within, dT);
+      bool trunk_vertex = false;
       for (const auto& [p, l] : vtx)
         for (int32_t v : l)
-          if (p == m.trunk || (in_trunk && in_trunk[voxel_of(V.row(v).transpose())]))
-            trunk_points.push_back(V.row(v).transpose());
-      int64_t nwithin = 0;
-      for (uint8_t b : within) nwithin += b;
-      m.within_voxels = nwithin > 0;
-      m.within_any = m.within_voxels || !trunk_points.empty();
-      m.within_share = double(nwithin) / double(k3);
-      for (int a = 0; a < 8; ++a) m.dT[size_t(a)] = m.dB[size_t(a)] = kInf;
-      Eigen::Vector3d corner[8];
-      for (int q = 0; q < 8; ++q)
-        corner[q] = lo + h * Eigen::Vector3d(double(q & 1), double((q >> 1) & 1), double(q >> 2));
-      auto near = [&](const Eigen::Vector3d& p, std::array<double, 8>& d) {
-        for (int q = 0; q < 8; ++q) d[size_t(q)] = std::min(d[size_t(q)], (p - corner[q]).norm());
-      };
-      for (int64_t vi = 0; vi < k3; ++vi)
-        if (within[size_t(vi)]) near(centre(vi), m.dT);
-      for (const auto& p : trunk_points) near(p, m.dT);
+          if (p == m.trunk || (in_trunk && in_trunk[voxel_of(V.row(v).transpose())])) {
+            nearest_point(V.row(v).transpose(), dT);
+            trunk_vertex = true;
+          }
+      m.within_any = m.within_voxels || trunk_vertex;
       for (int32_t p : parts) {
         if (p == m.trunk) continue;
-        int64_t n_exposed = 0, n_mask = 0, n_union = nwithin;
-        if (vox.count(p))
-          for (int64_t vi : vox[p]) {
-            ++n_mask;
-            if (!within[size_t(vi)]) {
-              ++n_exposed;
-              ++n_union;
-              near(centre(vi), m.dB);
-            }
+        const auto pj = std::find(present.begin(), present.end(), p);
+        int64_t n_exposed = 0, n_mask = 0;
+        if (pj != present.end()) {
+          const auto& in = inside[size_t(pj - present.begin())];
+          for (int64_t vi = 0; vi < k3; ++vi) {
+            const bool b = in[size_t(vi)] && mine[size_t(vi)];
+            n_mask += b;
+            exposed[size_t(vi)] = b && !within[size_t(vi)];
+            n_exposed += exposed[size_t(vi)];
           }
+          if (n_exposed > 0) nearest(exposed, dB);
+        }
         bool exposed_vertex = false;
         if (vtx.count(p))
           for (int32_t v : vtx[p])
             if (!(in_trunk && in_trunk[voxel_of(V.row(v).transpose())])) {
               exposed_vertex = true;
-              near(V.row(v).transpose(), m.dB);
+              nearest_point(V.row(v).transpose(), dB);
             }
         if (n_exposed == 0 && !exposed_vertex) continue;
         m.exposed.push_back(p);
-        m.branch_share.push_back(double(n_union) / double(k3));
+        m.branch_share.push_back(double(nwithin + n_exposed) / double(k3));
         m.mask_share.push_back(double(n_mask) / double(k3));
+      }
+      for (int q = 0; q < 8; ++q) {
+        m.dT[size_t(q)] = std::sqrt(dT[size_t(q)]);
+        m.dB[size_t(q)] = std::sqrt(dB[size_t(q)]);
       }
       material[size_t(cX)] = std::move(m);
       has[size_t(cX)] = 1;

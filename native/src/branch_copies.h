@@ -1,6 +1,6 @@
 // One copy per branch where separate parts meet (issue 9; docs/method.md, "One copy per branch").
-// Internal to the lattice builder; research stage: LatticeOptions::branch_copies, off by default,
-// CPU only (the CUDA backend refuses couplings).
+// Internal to the lattice builder; research stage: LatticeOptions::branch_copies, off by default
+// (both backends solve the couplings).
 //
 // Where fingers pushed into a palm leave it, the assembled lattice holds the palm's end and the
 // roots of the fingers in one copy (its piece is connected through the palm), and copies of the

@@ -40,9 +40,14 @@ HandleSystem make_handle_system(const Lattice& lat, int stencil, std::vector<int
   }
 
   // gamma is per term of the energy, one (cell copy, edge) pair weighing cell_weight: twice the
-  // edge weights' sum is the terms' (12 per whole cell).
+  // edge weights' sum is the terms' (12 per whole cell). A branch coupling's weight is in the edge
+  // weights too (each of its trunk copy's 12 edges gains half of it) but is not material: it is
+  // left out, so that splitting per branch does not soften the rest of the lattice against the
+  // handles, the anchors, the glue and the braces.
   double weight = 0.0;
   for (double w : lat.edge_weight) weight += w;
+  for (const Coupling& k : lat.couplings) weight -= 6.0 * k.weight;
+  weight = std::max(weight, 0.0);
   const double directed = std::max<double>(1.0, 2.0 * weight);
   const double s = size, h = lat.h;
   hs.gamma_eff = gamma * s * s / (h * h * directed);

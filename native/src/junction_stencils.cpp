@@ -83,12 +83,10 @@ void resolve_junction_stencils(const Lattice& lat, const PolygonMesh& mesh, Bind
         row[k] = best;
         continue;
       }
-      int32_t found = kStencilNone;
-      bool unique = true;
       // 2. The item a corner of the side's copies has for the same point, without ambiguity.
       const Eigen::Vector3i point = lat.node_coords[n] + Eigen::Vector3i(d[0], d[1], d[2]);
-      found = kStencilNone;
-      unique = true;
+      int32_t found = kStencilNone;
+      bool unique = true;
       for (const auto& [c, a] : side)
         for (int corner = 0; corner < 8; ++corner) {
           const int32_t u = lat.cell_nodes[c][corner];

@@ -413,15 +413,32 @@ Lattice LatticeAssembly::from_copies(const Lattice& grid, const LatticeCopies& k
   for (size_t c = 0; c < nc; ++c)
     for (int q = 0; q < 8; ++q) {
       const auto [it, fresh] = first.emplace(k.cell_nodes[c][size_t(q)], int32_t(8 * c + q));
-      if (!fresh) slots.unite(it->second, int32_t(8 * c + q));
+      if (fresh) continue;
+      const int32_t s = it->second;
+      if (k.cell_coords[size_t(s / 8)] + corner_offset(s % 8) != k.cell_coords[c] + corner_offset(q))
+        throw InvalidInput("replace_copies: node label " + std::to_string(k.cell_nodes[c][size_t(q)]) +
+                           " names two grid points");
+      for (int r = 0; r < q; ++r)
+        if (k.cell_nodes[c][size_t(r)] == k.cell_nodes[c][size_t(q)])
+          throw InvalidInput("replace_copies: a copy names one node twice");
+      slots.unite(s, int32_t(8 * c + q));
     }
   for (const Coupling& cp : k.couplings)
-    if (cp.branch < 0 || cp.trunk < 0 || size_t(cp.branch) >= nc || size_t(cp.trunk) >= nc || !(cp.weight >= 0.0))
-      throw InvalidInput("replace_copies: a coupling out of range");
+    if (cp.branch < 0 || cp.trunk < 0 || size_t(cp.branch) >= nc || size_t(cp.trunk) >= nc || cp.branch == cp.trunk ||
+        !(cp.weight >= 0.0 && std::isfinite(cp.weight)))
+      throw InvalidInput("replace_copies: a coupling out of range, between a copy and itself, or of a weight that "
+                         "is not finite and non-negative");
+  for (double w : k.cell_weight)
+    if (!(w > 0.0 && w <= 1.0)) throw InvalidInput("replace_copies: a cell weight outside (0, 1]");
   lat.couplings = k.couplings;
   finish(lat, slots);
-  for (int32_t v : k.vertex_cell)
-    if (v < 0 || v >= lat.num_cells()) throw InvalidInput("replace_copies: vertex_cell out of range");
+  for (size_t v = 0; v < k.vertex_cell.size(); ++v) {
+    const int32_t c = k.vertex_cell[v];
+    if (c < 0 || c >= lat.num_cells()) throw InvalidInput("replace_copies: vertex_cell out of range");
+    // The copy must be of the cell the vertex was in (a vertex binds inside its cell).
+    if (lat.cell_coords[size_t(c)] != grid.cell_coords[size_t(grid.vertex_cell[v])])
+      throw InvalidInput("replace_copies: vertex " + std::to_string(v) + " given a copy of another cell");
+  }
   lat.vertex_cell = k.vertex_cell;
   return lat;
 }
@@ -512,6 +529,10 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
                               max_bytes - Lattice::estimate_bytes(grid.dims));
   }
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
+  if (options.branch_copies && !options.split_cells)
+    throw InvalidInput("branch_copies needs split_cells (one copy per branch splits the cells' copies further)");
+  if (!(options.branch_coupling >= 0.0 && options.branch_coupling <= 1e6))
+    throw InvalidInput("branch_coupling must be between 0 and 1e6, got " + number_text(options.branch_coupling));
   if (options.split_cells && options.branch_copies) {
     BranchOptions bo;
     bo.k = options.split_resolution;

@@ -9,6 +9,7 @@
 #include <pybind11/stl.h>
 
 #include <cstring>
+#include <limits>
 #include <mutex>
 
 #include "parallel.h"
@@ -64,7 +65,16 @@ std::function<void(larap::Lattice&)> copies_edit(const py::object& obj) {
   using I32 = py::array_t<int32_t, py::array::c_style | py::array::forcecast>;
   auto arr = [&](const char* key) { return I32(d[key]); };
   larap::LatticeCopies k;
+  for (const char* key : {"cell_coords", "cell_nodes", "vertex_cell", "couplings"}) {  // no silent narrowing
+    const auto a = py::array_t<int64_t, py::array::c_style | py::array::forcecast>(d[key]);
+    for (py::ssize_t j = 0; j < a.size(); ++j)
+      if (a.data()[j] < std::numeric_limits<int32_t>::min() || a.data()[j] > std::numeric_limits<int32_t>::max())
+        throw larap::InvalidInput(std::string("lattice_copies: ") + key + " holds a value beyond 32 bits");
+  }
   const I32 coords = arr("cell_coords"), nodes = arr("cell_nodes"), verts = arr("vertex_cell"), pairs = arr("couplings");
+  if (coords.ndim() != 2 || coords.shape(1) != 3 || nodes.ndim() != 2 || nodes.shape(1) != 8 ||
+      pairs.ndim() != 2 || pairs.shape(1) != 2)
+    throw larap::InvalidInput("lattice_copies: cell_coords must be (C, 3), cell_nodes (C, 8), couplings (K, 2)");
   const py::array_t<uint8_t, py::array::c_style | py::array::forcecast> kinds(d["cell_kind"]);
   const F64 weights(d["cell_weight"]), cw(d["coupling_weights"]);
   const size_t nc = size_t(kinds.size());

@@ -1,7 +1,8 @@
 """Issue 9, session 30: where separate parts meet, one cell copy per branch (a reference solver on
 the engine's own lattice). Research code, not used by the engine or the add-on. Split alone, the
 neighbours' drag goes with the finger's hold on its palm; with `--anchor --couple 10` both hold on
-the character in this solver (figures and limits: scripts/experiments/README.md). Not in the engine.
+the character in this solver (figures and limits: scripts/experiments/README.md). In the engine since
+session 31 (native/src/branch_copies.cpp, `Deformer(_branch_copies=True)`, off by default).
 
 Where fingers pushed into a palm leave it, the engine's lattice holds the palm's end and the roots
 of every finger in a cell in one copy (its piece is connected through the palm), and copies of the

@@ -85,6 +85,42 @@ def test_coupled_energy_never_increases():
     assert np.all(np.diff(e) <= 1e-9 * e[0]), np.diff(e).max() / e[0]
 
 
+def test_the_last_energy_is_the_coupled_one():
+    """The energy a solve reports after its last flip-flop (evaluated with the last rotations) is
+    the one the next flip-flop's rotation pass sums for that pose: both count the couplings."""
+    V, F, groups = bar()
+    d = coupled(V, F, weight=30.0)
+    d.set_handle_groups(groups)
+    d.solve(transforms=bend(V), iterations=10)
+    e10 = d.stats["energy"]
+    d.reset()
+    d.solve(transforms=bend(V), iterations=11)
+    e11 = d.stats["energy"]
+    assert len(e10) == 10 and len(e11) == 11
+    assert abs(e10[-1] - e11[9]) <= 1e-12 * e10[0], (e10[-1], e11[9])
+
+
+def test_couplings_leave_the_lattice_as_stiff():
+    """A coupling's weight is not material: it does not count in gamma's normalisation by the
+    copies' edges. A coupling between two copies of a separate box that its handle keeps at rest
+    (zero there) leaves the bar's bend exactly as it was; counted, it softened the whole lattice
+    (the bar's pose moved 0.07% of the diagonal at this weight)."""
+    V0, F0, groups = bar()
+    B, FB = shapes.box((0.0, 3.0, 0.0), (1.0, 4.0, 1.0), 8)
+    V, F = shapes.concat((V0, F0), (B, FB))
+    held = np.arange(len(V0), len(V))
+    d0 = larap.Deformer(V, F, cell_size=0.25)
+    coords = d0._core.cell_coords()
+    a, b = np.flatnonzero(coords[:, 1] >= 14)[:2]  # two copies of the box's cells
+    X = []
+    for pairs in ([], [(a, b, 200.0)]):
+        d = larap.Deformer(V, F, cell_size=0.25, _lattice_copies=own_copies(d0, pairs))
+        d.set_handle_groups(groups + [held])
+        X.append(d.solve(transforms=np.concatenate([bend(V), [np.eye(4)]]), iterations=20))
+    size = np.linalg.norm(V.max(0) - V.min(0))
+    assert np.abs(X[0] - X[1]).max() <= 1e-9 * size, np.abs(X[0] - X[1]).max() / size
+
+
 def turned_degrees(d, c):
     """How far copy c's edges turned from rest (degrees): the best rotation of its 12 edges."""
     P, C = d.lattice_deformed(), d.lattice_rest()
@@ -123,12 +159,33 @@ def test_bad_copies_are_refused():
     V, F, _ = bar()
     d0 = larap.Deformer(V, F, cell_size=0.25)
     good = own_copies(d0)
+    nodes = good["cell_nodes"].copy()
+    nodes[1, 0] = nodes[0, 0] + 10 ** 5  # a label of its own: fine
+    far = good["cell_nodes"].copy()
+    far[5, 7] = far[0, 0]  # one label at two grid points
+    twice = good["cell_nodes"].copy()
+    twice[3, 1] = twice[3, 0]
+    moved = good["vertex_cell"].copy()
+    moved[0] = (moved[0] + 40) % len(good["cell_kind"])  # a copy of another cell
     for change in ({"couplings": np.array([[0, 10 ** 6]], np.int32), "coupling_weights": np.array([1.0])},
                    {"couplings": np.array([[0, 1]], np.int32), "coupling_weights": np.array([-1.0])},
+                   {"couplings": np.array([[0, 1]], np.int32), "coupling_weights": np.array([np.inf])},
+                   {"couplings": np.array([[2, 2]], np.int32), "coupling_weights": np.array([1.0])},
+                   {"couplings": np.array([[0, 1, 2]], np.int32), "coupling_weights": np.array([1.0])},
+                   {"cell_weight": np.full(len(good["cell_kind"]), np.nan)},
+                   {"cell_weight": np.zeros(len(good["cell_kind"]))},
+                   {"cell_nodes": far}, {"cell_nodes": twice}, {"vertex_cell": moved},
+                   {"vertex_cell": good["vertex_cell"].astype(np.int64) + 2 ** 32},
                    {"vertex_cell": good["vertex_cell"][:-1]},
                    {"cell_coords": good["cell_coords"][::-1].copy()}):
         with pytest.raises(ValueError):
             larap.Deformer(V, F, cell_size=0.25, _lattice_copies=dict(good, **change))
+    larap.Deformer(V, F, cell_size=0.25, _lattice_copies=dict(good, cell_nodes=nodes))
+    with pytest.raises(ValueError, match="split_cells"):
+        larap.Deformer(V, F, split_cells=False, _branch_copies=True)
+    for bad in (-1.0, np.nan, np.inf):
+        with pytest.raises(ValueError, match="branch_coupling"):
+            larap.Deformer(V, F, _branch_copies=True, _branch_coupling=bad)
 
 
 @need_cuda()

@@ -55,7 +55,8 @@ struct LatticeOptions {
   // separate parts closer (measured: beyond 1.55 sqrt(3) h / split_resolution; docs/method.md).
   bool split_cells = true;
   int split_resolution = 24;  // in [4, 64]
-  // One copy per branch where separate parts meet (research stage, off by default; CPU only):
+  // One copy per branch where separate parts meet (research stage, off by default; needs
+  // split_cells):
   // docs/method.md, "One copy per branch", native/src/branch_copies.h.
   bool branch_copies = false;
   double branch_coupling = 10.0;  // a coupling's weight per unit of its trunk copy's weight

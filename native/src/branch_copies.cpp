@@ -168,43 +168,32 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
   for (int64_t g = 0; g < ngrid; ++g)
     if (todo[size_t(g)]) cells.push_back(g);
 
-  // 1. Material, cell by cell.
+  // 1. Material. Each candidate cell's parts (those whose box meets it) and, per part, the voxels
+  // inside it by ray parity against its triangles alone (5 votes of 6). The cells of a row along
+  // an axis share that row's rays (voxel_inside.h), so each (axis, row, part) is crossed once for
+  // the cells of a batch that lie in it; a batch holds at most kBatchBytes of votes.
   const int k = o.k;
   const int64_t k3 = int64_t(k) * k * k;
   const double hv = h / k;
   std::vector<Material> material(static_cast<size_t>(nc));
   std::vector<uint8_t> has(size_t(nc), 0);
+  auto coords_of = [&](int64_t g) {
+    return Eigen::Vector3i(int(g % dims.x()), int((g / dims.x()) % dims.y()), int(g / (int64_t(dims.x()) * dims.y())));
+  };
+  std::vector<std::vector<int32_t>> present_of(cells.size());
   parallel_for(int64_t(cells.size()), [&](int64_t ci) {
-    const int64_t g = cells[size_t(ci)];
-    const Eigen::Vector3i x(int(g % dims.x()), int((g / dims.x()) % dims.y()), int(g / (int64_t(dims.x()) * dims.y())));
-    const Eigen::Vector3d lo = cell_lo(x);
+    const Eigen::Vector3d lo = cell_lo(coords_of(cells[size_t(ci)]));
     const Eigen::AlignedBox3d box(lo, lo + Eigen::Vector3d::Constant(h));
-    std::vector<int32_t> present;
     for (int32_t p = 0; p < P.count(); ++p)
-      if (P.box[size_t(p)].intersects(box)) present.push_back(p);
-    // Per present part: its voxels (ray parity against its triangles alone, 5 votes of 6).
-    std::vector<std::vector<uint8_t>> inside(present.size(), std::vector<uint8_t>(size_t(k3), 0));
-    for (size_t j = 0; j < present.size(); ++j) {
-      const int32_t p = present[j];
-      for (int a = 0; a < 3; ++a) {
-        std::vector<int32_t> ids;
-        Eigen::Vector3i y = x;
-        for (y[a] = 0; y[a] < dims[a]; ++y[a]) {
-          const int64_t gy = grid_index(y);
-          for (int32_t q = tri_offsets[size_t(gy)]; q < tri_offsets[size_t(gy) + 1]; ++q)
-            if (P.of_vertex[size_t(tris[size_t(tri_ids[size_t(q)])][0])] == p) ids.push_back(tri_ids[size_t(q)]);
-        }
-        std::sort(ids.begin(), ids.end());
-        ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
-        Eigen::Vector3i row = x;
-        row[a] = 0;
-        RowRays rays(a, cell_lo(row), hv, k);
-        rays.cross(ids.data(), ids.size(), V, tris, vertex_part);
-        uint8_t* v = inside[j].data();
-        rays.votes(x[a], [v](int64_t vi, int n) { v[vi] = uint8_t(v[vi] + n); });
-      }
-      for (auto& b : inside[j]) b = b >= kInsideVotes;
-    }
+      if (P.box[size_t(p)].intersects(box)) present_of[size_t(ci)].push_back(p);
+  }, 64);
+  // The rest of a cell's analysis, from its present parts' votes: the copies' material.
+  auto analyse_cell = [&](int64_t g, const std::vector<int32_t>& present, const uint8_t* votes) {
+    const Eigen::Vector3i x = coords_of(g);
+    const Eigen::Vector3d lo = cell_lo(x);
+    std::vector<std::vector<uint8_t>> inside(present.size(), std::vector<uint8_t>(size_t(k3)));
+    for (size_t j = 0; j < present.size(); ++j)
+      for (int64_t vi = 0; vi < k3; ++vi) inside[j][size_t(vi)] = votes[int64_t(j) * k3 + vi] >= kInsideVotes;
     // The voxels inside some part; where the cell has several copies, their 6-connected components.
     std::vector<uint8_t> solid(size_t(k3), 0);
     for (const auto& in : inside)
@@ -372,7 +361,52 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
       material[size_t(cX)] = std::move(m);
       has[size_t(cX)] = 1;
     }
-  }, 1);
+  };
+  constexpr int64_t kBatchBytes = int64_t(64) << 20;
+  for (size_t b0 = 0; b0 < cells.size();) {
+    size_t b1 = b0;
+    std::vector<int64_t> offset(1, 0);  // of each batch cell's votes, part after part
+    while (b1 < cells.size() && (b1 == b0 || offset.back() + int64_t(present_of[b1].size()) * k3 <= kBatchBytes)) {
+      offset.push_back(offset.back() + int64_t(present_of[b1].size()) * k3);
+      ++b1;
+    }
+    std::vector<uint8_t> votes(size_t(offset.back()), 0);
+    for (int a = 0; a < 3; ++a) {  // axis by axis: a (cell, part) is in one row per axis
+      std::map<std::pair<int64_t, int32_t>, std::vector<std::pair<int32_t, int32_t>>> rows;  // (row, part) -> (cell, j)
+      for (size_t ci = b0; ci < b1; ++ci) {
+        Eigen::Vector3i row = coords_of(cells[ci]);
+        row[a] = 0;
+        for (size_t j = 0; j < present_of[ci].size(); ++j)
+          rows[{grid_index(row), present_of[ci][j]}].emplace_back(int32_t(ci - b0), int32_t(j));
+      }
+      std::vector<const decltype(rows)::value_type*> tasks;
+      for (const auto& r : rows) tasks.push_back(&r);
+      parallel_for(int64_t(tasks.size()), [&](int64_t t) {
+        const auto& [key, members] = *tasks[size_t(t)];
+        const Eigen::Vector3i row = coords_of(key.first);
+        const int32_t p = key.second;
+        std::vector<int32_t> ids;
+        Eigen::Vector3i y = row;
+        for (y[a] = 0; y[a] < dims[a]; ++y[a]) {
+          const int64_t gy = grid_index(y);
+          for (int32_t q = tri_offsets[size_t(gy)]; q < tri_offsets[size_t(gy) + 1]; ++q)
+            if (P.of_vertex[size_t(tris[size_t(tri_ids[size_t(q)])][0])] == p) ids.push_back(tri_ids[size_t(q)]);
+        }
+        std::sort(ids.begin(), ids.end());
+        ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+        RowRays rays(a, cell_lo(row), hv, k);
+        rays.cross(ids.data(), ids.size(), V, tris, vertex_part);
+        for (const auto& [c, j] : members) {
+          uint8_t* v = votes.data() + offset[size_t(c)] + int64_t(j) * k3;
+          rays.votes(coords_of(cells[b0 + size_t(c)])[a], [v](int64_t vi, int n) { v[vi] = uint8_t(v[vi] + n); });
+        }
+      }, 1);
+    }
+    parallel_for(int64_t(b1 - b0), [&](int64_t bc) {
+      analyse_cell(cells[b0 + size_t(bc)], present_of[b0 + size_t(bc)], votes.data() + offset[size_t(bc)]);
+    }, 1);
+    b0 = b1;
+  }
 
   // 2. Sides: per node, over the copies around it.
   const int64_t nn = lat.num_real_nodes();

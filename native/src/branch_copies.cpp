@@ -135,26 +135,15 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
     for (size_t v = 0; v < lat.vertex_cell.size(); ++v) verts[size_t(fill[size_t(lat.vertex_cell[v])]++)] = int32_t(v);
   }
 
-  // Cells near where parts meet: a cell one of whose copies holds vertices of two parts, or whose
-  // triangles are of more parts than it has copies (so that one copy holds two), and the kept
-  // cells around them. Where cell splitting kept every part in a copy of its own (parts close
-  // together but apart, such as rows of boxes), nothing is to be split.
-  auto holds_two = [&](int64_t c) {
-    int32_t seen = -1;
-    for (int32_t q = vert_offsets[size_t(c)]; q < vert_offsets[size_t(c) + 1]; ++q) {
-      const int32_t p = P.of_vertex[size_t(verts[size_t(q)])];
-      if (p < 0) continue;
-      if (seen >= 0 && p != seen) return true;
-      seen = p;
-    }
-    return false;
-  };
+  // Cells near where parts meet: those two parts' triangles overlap, and the kept cells around
+  // them. (Narrowing this to cells where a copy can hold two parts -- a copy with vertices of two,
+  // or more parts than copies -- saved rows of boxes that split nothing, but missed a junction
+  // whose trunk fills two copies of a cell and whose branch has no vertex beside the trunk's.)
   std::vector<uint8_t> todo(size_t(ngrid), 0);
   bool any = false;
   for (int64_t c = 0; c < nc; ++c) {
     const Eigen::Vector3i x = lat.cell_coords[size_t(c)];
-    const size_t copies = size_t(lat.cell_copies(x.x(), x.y(), x.z()));
-    if (!holds_two(c) && parts_in(grid_index(x)).size() <= copies) continue;
+    if (parts_in(grid_index(x)).size() < 2) continue;
     any = true;
     for (int dz = -1; dz <= 1; ++dz)
       for (int dy = -1; dy <= 1; ++dy)
@@ -188,12 +177,15 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
       if (P.box[size_t(p)].intersects(box)) present_of[size_t(ci)].push_back(p);
   }, 64);
   // The rest of a cell's analysis, from its present parts' votes: the copies' material.
-  auto analyse_cell = [&](int64_t g, const std::vector<int32_t>& present, const uint8_t* votes) {
+  auto analyse_cell = [&](int64_t g, const std::vector<int32_t>& present, uint8_t* votes) {
     const Eigen::Vector3i x = coords_of(g);
     const Eigen::Vector3d lo = cell_lo(x);
-    std::vector<std::vector<uint8_t>> inside(present.size(), std::vector<uint8_t>(size_t(k3)));
-    for (size_t j = 0; j < present.size(); ++j)
-      for (int64_t vi = 0; vi < k3; ++vi) inside[j][size_t(vi)] = votes[int64_t(j) * k3 + vi] >= kInsideVotes;
+    std::vector<const uint8_t*> inside(present.size());  // per present part, 1 where inside (the votes, in place)
+    for (size_t j = 0; j < present.size(); ++j) {
+      uint8_t* v = votes + int64_t(j) * k3;
+      for (int64_t vi = 0; vi < k3; ++vi) v[vi] = v[vi] >= kInsideVotes;
+      inside[j] = v;
+    }
     // The voxels inside some part; where the cell has several copies, their 6-connected components.
     std::vector<uint8_t> solid(size_t(k3), 0);
     for (const auto& in : inside)
@@ -307,7 +299,7 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
         return P.volume[size_t(a)] < P.volume[size_t(b)];
       });
       const auto tj = std::find(present.begin(), present.end(), m.trunk);
-      const uint8_t* in_trunk = tj == present.end() ? nullptr : inside[size_t(tj - present.begin())].data();
+      const uint8_t* in_trunk = tj == present.end() ? nullptr : inside[size_t(tj - present.begin())];
       // The trunk's material: its voxels, its vertices, and other parts' vertices inside it.
       int64_t nwithin = 0;
       for (int64_t vi = 0; vi < k3; ++vi) {
@@ -333,7 +325,7 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
         const auto pj = std::find(present.begin(), present.end(), p);
         int64_t n_exposed = 0, n_mask = 0;
         if (pj != present.end()) {
-          const auto& in = inside[size_t(pj - present.begin())];
+          const uint8_t* in = inside[size_t(pj - present.begin())];
           for (int64_t vi = 0; vi < k3; ++vi) {
             const bool b = in[size_t(vi)] && mine[size_t(vi)];
             n_mask += b;

@@ -90,6 +90,30 @@ def test_the_split_is_a_ball_joint_with_couplings():
         assert len(np.unique(part[vcell == b])) <= 1
 
 
+def extruded(poly, tris2d, z0, z1):
+    """A prism: the polygon `poly` (its triangles `tris2d`) from z0 to z1."""
+    n = len(poly)
+    V = [(x, y, z0) for x, y in poly] + [(x, y, z1) for x, y in poly]
+    F = [(a, c, b) for a, b, c in tris2d] + [(n + a, n + b, n + c) for a, b, c in tris2d]
+    for i in range(n):
+        j = (i + 1) % n
+        F += [(i, j, n + j), (i, n + j, n + i)]
+    return np.array(V, float), F
+
+
+def test_a_junction_whose_trunk_fills_two_copies_of_a_cell_is_split():
+    """A coarse U-shaped trunk whose slot (0.04 wide) runs through cells of 0.25, so that the trunk
+    fills two copies of them, and a box pushed into one prong with no vertex beside the trunk's: the
+    junction is still found and split (a narrower choice of the cells to look at, by the copies'
+    vertices, missed it: found by a review, session 31)."""
+    trunk = extruded([(0, 0), (2, 0), (2, 0.45), (0.2, 0.45), (0.2, 0.49), (2, 0.49), (2, 1), (0, 1)],
+                     [(0, 1, 2), (0, 2, 3), (0, 3, 4), (0, 4, 7), (4, 5, 6), (4, 6, 7)], 0.0, 0.88)
+    branch = extruded([(0.8, 0.27), (1.2, 0.27), (1.2, 0.44), (0.8, 0.44)], [(0, 1, 2), (0, 2, 3)], 0.55, 1.9)
+    V, F = shapes.concat(trunk, branch)
+    d = larap.Deformer(V, F, cell_size=0.25, **BRANCH)
+    assert len(d._core.branch_couplings()[0]) > 0
+
+
 def test_one_part_gets_the_lattice_it_had():
     V, F = shapes.torus()
     groups = [np.flatnonzero(V[:, 0] < -0.9), np.flatnonzero(V[:, 0] > 0.9)]

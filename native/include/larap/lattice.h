@@ -110,7 +110,8 @@ class Lattice {
   // Cells kept whole, and every cell of a coarser level, weigh 1.
   std::vector<double> cell_weight;
   // Branch couplings (fine level only; empty where nothing is split per branch). Their weights
-  // count in edge_weight (the system's Laplacian) like a copy's.
+  // count in edge_weight (the system's Laplacian) like a copy's, not in gamma's normalisation
+  // (handle_system.cpp: they are not material).
   std::vector<Coupling> couplings;
 
   // ------------------------------------------------------------------ nodes

@@ -87,22 +87,11 @@ CudaBackend::CudaBackend(const Lattice& lattice, const RowMatrixX3d& vertices) :
     sys_.nc_off = nc_off_.upload(t.offsets.data(), t.offsets.size(), stream_);
     sys_.nc_cell = nc_cell_.upload(t.cell.data(), t.cell.size(), stream_);
     sys_.nc_s = nc_s_.upload(s.data(), s.size(), stream_);
-    std::vector<int> cp_off, cp_trunk;
-    std::vector<float> cp_w;
-    if (!lattice.couplings.empty()) {  // grouped by branch copy
-      cp_off.assign(size_t(ncell) + 1, 0);
-      for (const Coupling& k : lattice.couplings) ++cp_off[size_t(k.branch) + 1];
-      for (int c = 0; c < ncell; ++c) cp_off[size_t(c) + 1] += cp_off[size_t(c)];
-      cp_trunk.resize(lattice.couplings.size());
-      cp_w.resize(lattice.couplings.size());
-      std::vector<int> fill(cp_off.begin(), cp_off.end() - 1);
-      for (const Coupling& k : lattice.couplings) {
-        const int j = fill[size_t(k.branch)]++;
-        cp_trunk[size_t(j)] = k.trunk;
-        cp_w[size_t(j)] = float(k.weight);
-      }
-      sys_.cp_off = cp_off_.upload(cp_off.data(), cp_off.size(), stream_);
-      sys_.cp_trunk = cp_trunk_.upload(cp_trunk.data(), cp_trunk.size(), stream_);
+    const BranchCouplings cp = couplings_by_branch(lattice);  // node_cells.h
+    std::vector<float> cp_w(cp.weight.begin(), cp.weight.end());
+    if (!cp.offsets.empty()) {
+      sys_.cp_off = cp_off_.upload(cp.offsets.data(), cp.offsets.size(), stream_);
+      sys_.cp_trunk = cp_trunk_.upload(cp.trunk.data(), cp.trunk.size(), stream_);
       sys_.cp_w = cp_w_.upload(cp_w.data(), cp_w.size(), stream_);
     }
     LARAP_CUDA_CHECK(cudaStreamSynchronize(stream_));  // the host tables may go

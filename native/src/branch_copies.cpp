@@ -12,6 +12,7 @@
 #include "geometry.h"
 #include "parallel.h"
 #include "voxel_inside.h"
+#include "voxel_rows.h"
 
 namespace larap {
 namespace {
@@ -194,30 +195,15 @@ bool split_per_branch(const Lattice& lat, const RowMatrixX3d& V, const std::vect
     std::vector<int32_t> comp;
     int32_t ncomp = 0;
     if (ncopies > 1) {
-      comp.assign(size_t(k3), -1);
-      std::vector<int32_t> stack;
-      for (int64_t s = 0; s < k3; ++s) {
-        if (comp[size_t(s)] >= 0 || !solid[size_t(s)]) continue;
-        comp[size_t(s)] = ncomp;
-        stack.assign(1, int32_t(s));
-        while (!stack.empty()) {
-          const int32_t vi = stack.back();
-          stack.pop_back();
-          const int i = vi % k, jj = (vi / k) % k, l = vi / (k * k);
-          const int32_t step[3] = {1, k, k * k};
-          const int at[3] = {i, jj, l};
-          for (int a = 0; a < 3; ++a)
-            for (int sgn = -1; sgn <= 1; sgn += 2) {
-              if (at[a] + sgn < 0 || at[a] + sgn >= k) continue;
-              const int32_t w = vi + sgn * step[a];
-              if (comp[size_t(w)] < 0 && solid[size_t(w)]) {
-                comp[size_t(w)] = ncomp;
-                stack.push_back(w);
-              }
-            }
-        }
+      comp.assign(size_t(k3), -1);  // the pieces' flood on bit rows (voxel_rows.h), in voxel order
+      std::vector<uint64_t> left(static_cast<size_t>(k) * k);
+      rows_equal(solid.data(), k, 1, left.data());
+      for_each_piece(k, left.data(), [&](const uint64_t* piece, RowSpan span) {
+        for (int r = span.first; r <= span.last; ++r)
+          for (uint64_t bits = piece[r]; bits; bits &= bits - 1)
+            comp[size_t(int64_t(r) * k + __builtin_ctzll(bits))] = ncomp;
         ++ncomp;
-      }
+      });
     }
     // The copies take components: those holding their vertices' parts (a copy without vertices:
     // what no other copy takes). One copy takes everything.

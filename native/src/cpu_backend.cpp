@@ -9,7 +9,6 @@
 #include <Eigen/SparseCholesky>  // fallback when CHOLMOD is not installed
 #endif
 #include <Eigen/Sparse>
-#include <algorithm>
 #include <chrono>
 
 #include "backend.h"
@@ -70,23 +69,9 @@ class CpuBackend final : public Backend {
  public:
   CpuBackend(const Lattice& lattice, const RowMatrixX3d& vertices)
       : lat_(lattice), V_(vertices), nr_(lattice.num_real_nodes()), pose_(lattice.rest),
-        R_(size_t(lattice.num_cells()), Rotation::Identity()), node_cells_(node_cells(lattice)) {
+        R_(size_t(lattice.num_cells()), Rotation::Identity()), node_cells_(node_cells(lattice)),
+        couplings_(couplings_by_branch(lattice)) {
     cell_energy_.resize(size_t(lattice.num_cells()));
-    // Branch couplings grouped by branch copy (Lattice::couplings).
-    const int64_t nc = lattice.num_cells();
-    coupled_.assign(size_t(nc), 0);
-    coupling_offsets_.assign(size_t(nc) + 1, 0);
-    for (const Coupling& k : lattice.couplings) ++coupling_offsets_[size_t(k.branch) + 1];
-    for (int64_t c = 0; c < nc; ++c) coupling_offsets_[size_t(c) + 1] += coupling_offsets_[size_t(c)];
-    coupling_list_.resize(lattice.couplings.size());
-    std::vector<int32_t> fill(coupling_offsets_.begin(), coupling_offsets_.end() - 1);
-    for (const Coupling& k : lattice.couplings) {
-      coupling_list_[size_t(fill[size_t(k.branch)]++)] = k;
-      coupled_[size_t(k.branch)] = 1;
-      branches_.push_back(k.branch);
-    }
-    std::sort(branches_.begin(), branches_.end());
-    branches_.erase(std::unique(branches_.begin(), branches_.end()), branches_.end());
   }
 
   std::string name() const override { return "cpu"; }
@@ -218,22 +203,22 @@ class CpuBackend final : public Backend {
   // copy's S, and its energy counts the trunk's edges under its rotation too.
   void rotations(bool with_energy) {
     parallel_for(lat_.num_cells(), [&](int64_t c) {
-      if (coupled_[size_t(c)]) return;
+      if (couplings_.begin(c) < couplings_.end(c)) return;  // below
       double S[9];
       const double e = cell_covariance(corners_of(c), with_energy, R_[size_t(c)].data(), S);
       if (with_energy) cell_energy_[size_t(c)] = cell_weight_of(lat_, c) * e;
       R_[size_t(c)] = best_rotation_fast(Eigen::Map<const Rotation>(S));
     }, 256);
-    parallel_for(int64_t(branches_.size()), [&](int64_t k) {
-      const int32_t b = branches_[size_t(k)];
+    parallel_for(int64_t(couplings_.branches.size()), [&](int64_t k) {
+      const int32_t b = couplings_.branches[size_t(k)];
       double S[9], St[9], total[9];
       const double wb = cell_weight_of(lat_, b);
       double e = wb * cell_covariance(corners_of(b), with_energy, R_[size_t(b)].data(), S);
       for (int t = 0; t < 9; ++t) total[t] = wb * S[t];
-      for (int32_t j = coupling_offsets_[size_t(b)]; j < coupling_offsets_[size_t(b) + 1]; ++j) {
-        const Coupling& cp = coupling_list_[size_t(j)];
-        e += cp.weight * cell_covariance(corners_of(cp.trunk), with_energy, R_[size_t(b)].data(), St);
-        for (int t = 0; t < 9; ++t) total[t] += cp.weight * St[t];
+      for (int32_t j = couplings_.begin(b); j < couplings_.end(b); ++j) {
+        const double w = couplings_.weight[size_t(j)];
+        e += w * cell_covariance(corners_of(couplings_.trunk[size_t(j)]), with_energy, R_[size_t(b)].data(), St);
+        for (int t = 0; t < 9; ++t) total[t] += w * St[t];
       }
       if (with_energy) cell_energy_[size_t(b)] = e;
       R_[size_t(b)] = best_rotation_fast(Eigen::Map<const Rotation>(total));
@@ -277,11 +262,9 @@ class CpuBackend final : public Backend {
     parallel_for(lat_.num_cells(), [&](int64_t c) {
       double S[9];
       double e = cell_weight_of(lat_, c) * cell_covariance(corners_of(c), true, R_[size_t(c)].data(), S);
-      if (coupled_[size_t(c)])
-        for (int32_t j = coupling_offsets_[size_t(c)]; j < coupling_offsets_[size_t(c) + 1]; ++j) {
-          const Coupling& cp = coupling_list_[size_t(j)];
-          e += cp.weight * cell_covariance(corners_of(cp.trunk), true, R_[size_t(c)].data(), S);
-        }
+      for (int32_t j = couplings_.begin(c); j < couplings_.end(c); ++j)
+        e += couplings_.weight[size_t(j)] *
+             cell_covariance(corners_of(couplings_.trunk[size_t(j)]), true, R_[size_t(c)].data(), S);
       cell_energy_[size_t(c)] = e;
     }, 1024);
     return finish_energy();
@@ -294,10 +277,7 @@ class CpuBackend final : public Backend {
   std::vector<Rotation> R_;            // per cell copy
   NodeCells node_cells_;               // the right-hand side's gather (node_cells.h)
   std::vector<double> cell_energy_;    // w_c e_c per cell copy (with its couplings' terms)
-  std::vector<uint8_t> coupled_;       // per copy: a branch copy with couplings
-  std::vector<int32_t> coupling_offsets_;  // per copy: its couplings in coupling_list_
-  std::vector<Coupling> coupling_list_;
-  std::vector<int32_t> branches_;      // the coupled copies, ascending
+  BranchCouplings couplings_;          // the couplings by branch copy (node_cells.h)
   HandleSystem hs_;
   Eigen::SparseMatrix<double> M_;  // B^T diag(alpha) B (the warm start's moments)
   Eigen::SparseMatrix<double> G_;  // the ties: glue and braces (the system and the energy)

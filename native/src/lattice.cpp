@@ -467,6 +467,10 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
   if (options.split_resolution < 4 || options.split_resolution > 64)
     throw InvalidInput("split_resolution must be between 4 and 64, got " +
                        std::to_string(options.split_resolution));
+  if (options.branch_copies && !options.split_cells)
+    throw InvalidInput("branch_copies needs split_cells (one copy per branch splits the cells' copies further)");
+  if (!(options.branch_coupling >= 0.0 && options.branch_coupling <= 1e6))
+    throw InvalidInput("branch_coupling must be between 0 and 1e6, got " + number_text(options.branch_coupling));
   const int64_t max_bytes = options.max_bytes > 0 ? options.max_bytes : physical_memory_bytes() / 2;
 
   const Eigen::Vector3d lo = mesh.vertices.colwise().minCoeff().transpose();
@@ -529,11 +533,7 @@ Lattice Lattice::build(const PolygonMesh& mesh, const LatticeOptions& options) {
                               max_bytes - Lattice::estimate_bytes(grid.dims));
   }
   Lattice lat = LatticeAssembly::fine(grid.origin, grid.h, grid.dims, grid.marks, pieces, grid.vertex_cells);
-  if (options.branch_copies && !options.split_cells)
-    throw InvalidInput("branch_copies needs split_cells (one copy per branch splits the cells' copies further)");
-  if (!(options.branch_coupling >= 0.0 && options.branch_coupling <= 1e6))
-    throw InvalidInput("branch_coupling must be between 0 and 1e6, got " + number_text(options.branch_coupling));
-  if (options.split_cells && options.branch_copies) {
+  if (options.branch_copies) {
     BranchOptions bo;
     bo.k = options.split_resolution;
     bo.coupling = options.branch_coupling;

@@ -34,4 +34,24 @@ NodeCells node_cells(const Lattice& lat) {
   return t;
 }
 
+BranchCouplings couplings_by_branch(const Lattice& lat) {
+  BranchCouplings b;
+  if (lat.couplings.empty()) return b;
+  const int64_t nc = lat.num_cells();
+  b.offsets.assign(size_t(nc) + 1, 0);
+  for (const Coupling& k : lat.couplings) ++b.offsets[size_t(k.branch) + 1];
+  for (int64_t c = 0; c < nc; ++c) b.offsets[size_t(c) + 1] += b.offsets[size_t(c)];
+  b.trunk.resize(lat.couplings.size());
+  b.weight.resize(lat.couplings.size());
+  std::vector<int32_t> fill(b.offsets.begin(), b.offsets.end() - 1);
+  for (const Coupling& k : lat.couplings) {
+    const int32_t j = fill[size_t(k.branch)]++;
+    b.trunk[size_t(j)] = k.trunk;
+    b.weight[size_t(j)] = k.weight;
+  }
+  for (int64_t c = 0; c < nc; ++c)
+    if (b.offsets[size_t(c)] < b.offsets[size_t(c) + 1]) b.branches.push_back(int32_t(c));
+  return b;
+}
+
 }  // namespace larap

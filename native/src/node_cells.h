@@ -22,6 +22,20 @@ struct NodeCells {
 
 NodeCells node_cells(const Lattice& lat);
 
+// The lattice's couplings grouped by branch copy, what the backends' rotation fits read: copy c's
+// are trunk[k], weight[k] for k in [offsets[c], offsets[c + 1]), in their order in the lattice;
+// branches lists the coupled copies, ascending. Empty when the lattice has none.
+struct BranchCouplings {
+  std::vector<int32_t> offsets;  // #copies + 1 (empty without couplings)
+  std::vector<int32_t> trunk;
+  std::vector<double> weight;
+  std::vector<int32_t> branches;
+  int32_t begin(int64_t c) const { return offsets.empty() ? 0 : offsets[size_t(c)]; }
+  int32_t end(int64_t c) const { return offsets.empty() ? 0 : offsets[size_t(c) + 1]; }
+};
+
+BranchCouplings couplings_by_branch(const Lattice& lat);
+
 // cell_weight[c], or 1 where the lattice has no weights.
 inline double cell_weight_of(const Lattice& lat, int64_t c) {
   return lat.cell_weight.empty() ? 1.0 : lat.cell_weight[size_t(c)];

@@ -80,14 +80,33 @@ def test_the_split_is_a_ball_joint_with_couplings():
     assert len(d.cell_nodes()) == len(d0.cell_nodes()) + len(pairs)
     cells, weight = d.cell_nodes(), d.cell_weights()
     np.testing.assert_allclose(w, 10.0 * weight[pairs[:, 1]])
-    part = np.zeros(len(V), int)
-    for k, f in enumerate(parts["fingers"]):
-        part[f] = k + 1
+    part = mesh_parts(len(V), F)
+    fingers = {int(part[f[0]]) for f in parts["fingers"]}
     vcell, _ = d.trilinear_binding()
+    held = set()
     for b, t in pairs:
         shared = len(set(cells[b]) & set(cells[t]))
         assert 1 <= shared < 8, (b, t, shared)
-        assert len(np.unique(part[vcell == b])) <= 1
+        assert len(np.unique(part[vcell == b])) <= 1, np.unique(part[vcell == b])
+        held |= set(part[vcell == b].tolist())
+    assert len(held & fingers) >= 3, (held, fingers)  # the fingers of the posed hand at least
+
+
+def mesh_parts(n, F):
+    """Each vertex's part: the connected components of the faces (a union-find)."""
+    root = np.arange(n)
+
+    def find(x):
+        while root[x] != x:
+            root[x] = root[root[x]]
+            x = root[x]
+        return x
+    for f in F:
+        for a, b in zip(f, f[1:]):
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                root[max(ra, rb)] = min(ra, rb)
+    return np.array([find(v) for v in range(n)])
 
 
 def extruded(poly, tris2d, z0, z1):
